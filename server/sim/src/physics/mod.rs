@@ -1,0 +1,11 @@
+//! Physics: robots in rapier worlds, actuation, state read-back.
+
+mod actuation;
+mod joint_state;
+mod robot_state;
+mod world;
+
+pub use actuation::{ActuatorParams, FRICTION_RAMP_SPEED, passive_torque, pd_torque};
+pub use joint_state::{joint_angle, joint_speed};
+pub use robot_state::RobotState;
+pub use world::{CONTACT_FORCE_THRESHOLD, PhysicsParams, RobotPhysicalParams, RobotWorld};

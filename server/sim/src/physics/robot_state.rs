@@ -1,0 +1,56 @@
+//! What the simulator reads back from one robot after a policy step.
+
+use rapier3d::math::{Rotation, Vec3};
+
+use crate::robot::{NUM_FEET, NUM_JOINTS};
+
+/// The measured state of one robot (world frame unless noted).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RobotState {
+    /// Trunk origin position (m).
+    pub base_pos: Vec3,
+    /// Trunk orientation.
+    pub base_rot: Rotation,
+    /// Velocity of the trunk origin (m/s).
+    pub base_linvel: Vec3,
+    /// Trunk angular velocity (rad/s).
+    pub base_angvel: Vec3,
+    /// Joint angles (rad), action order.
+    pub q: [f32; NUM_JOINTS],
+    /// Joint speeds (rad/s).
+    pub qd: [f32; NUM_JOINTS],
+    /// Foot sphere centres (m).
+    pub foot_pos: [Vec3; NUM_FEET],
+    /// Foot sphere centre velocities (m/s).
+    pub foot_vel: [Vec3; NUM_FEET],
+    /// Normal contact force on each foot (N), last physics step.
+    pub foot_force: [f32; NUM_FEET],
+    /// Normal contact force on the trunk and head (N).
+    pub trunk_force: f32,
+    /// Number of penalised bodies (thighs, calves) touching the terrain.
+    pub penalised_contacts: u32,
+    /// Bit set of the penalised bodies in contact (scratch for counting).
+    pub penalised_bodies: u32,
+    /// Worst joint anchor separation of this robot (m).
+    pub max_joint_gap: f32,
+}
+
+impl Default for RobotState {
+    fn default() -> Self {
+        Self {
+            base_pos: Vec3::ZERO,
+            base_rot: Rotation::IDENTITY,
+            base_linvel: Vec3::ZERO,
+            base_angvel: Vec3::ZERO,
+            q: [0.0; NUM_JOINTS],
+            qd: [0.0; NUM_JOINTS],
+            foot_pos: [Vec3::ZERO; NUM_FEET],
+            foot_vel: [Vec3::ZERO; NUM_FEET],
+            foot_force: [0.0; NUM_FEET],
+            trunk_force: 0.0,
+            penalised_contacts: 0,
+            penalised_bodies: 0,
+            max_joint_gap: 0.0,
+        }
+    }
+}
