@@ -35,6 +35,26 @@ pub struct RobotState {
     pub max_joint_gap: f32,
 }
 
+impl RobotState {
+    /// Forget all contacts (e.g. after a teleport).
+    pub fn clear_contacts(&mut self) {
+        self.foot_force = [0.0; NUM_FEET];
+        self.trunk_force = 0.0;
+        self.penalised_contacts = 0;
+        self.penalised_bodies = 0;
+    }
+
+    /// Whether every measured quantity is finite.
+    pub fn is_finite(&self) -> bool {
+        self.base_pos.is_finite()
+            && self.base_rot.is_finite()
+            && self.base_linvel.is_finite()
+            && self.base_angvel.is_finite()
+            && self.q.iter().chain(&self.qd).all(|v| v.is_finite())
+            && self.foot_vel.iter().all(|v| v.is_finite())
+    }
+}
+
 impl Default for RobotState {
     fn default() -> Self {
         Self {

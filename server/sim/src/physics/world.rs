@@ -7,7 +7,7 @@
 
 use rapier3d::prelude::*;
 
-use crate::robot::{ColliderRole, NUM_FEET, NUM_JOINTS, RobotModel, Shape};
+use crate::robot::{ColliderRole, NUM_JOINTS, RobotModel, Shape};
 
 use super::actuation::{ActuatorParams, passive_torque, pd_torque};
 use super::joint_state::{joint_angle, joint_speed};
@@ -280,37 +280,39 @@ impl RobotWorld {
         );
     }
 
-    /// Read every robot's state into `out` (one entry per slot), including contact forces of the
-    /// last physics step.
+    /// Read the pose, velocities, joints and feet of robot `slot` into `s` (contacts untouched).
+    pub fn read_kinematics(&self, model: &RobotModel, slot: usize, s: &mut RobotState) {
+        let robot = &self.robots[slot];
+        let trunk = &self.bodies[robot.bodies[0]];
+        let base = *trunk.position();
+        s.base_pos = base.translation;
+        s.base_rot = base.rotation;
+        s.base_linvel = trunk.velocity_at_point(base.translation);
+        s.base_angvel = trunk.angvel();
+        let mut gap: f32 = 0.0;
+        for (j, joint) in model.joints.iter().enumerate() {
+            let pb = &self.bodies[robot.bodies[joint.parent_body]];
+            let cb = &self.bodies[robot.bodies[joint.child_body]];
+            s.q[j] = joint_angle(*pb.rotation(), *cb.rotation(), joint.axis);
+            s.qd[j] = joint_speed(*cb.rotation(), pb.angvel(), cb.angvel(), joint.axis);
+            let anchor = pb.position().transform_point(joint.origin.translation);
+            gap = gap.max(anchor.distance(cb.translation()));
+        }
+        s.max_joint_gap = gap;
+        for (f, foot) in model.feet.iter().enumerate() {
+            let b = &self.bodies[robot.bodies[foot.body]];
+            let p = b.position().transform_point(foot.offset);
+            s.foot_pos[f] = p;
+            s.foot_vel[f] = b.velocity_at_point(p);
+        }
+    }
+
+    /// Read every robot's state into `out` (one entry per slot), including the contact forces of
+    /// the last physics step.
     pub fn read_states(&self, model: &RobotModel, out: &mut [RobotState]) {
-        for (slot, robot) in self.robots.iter().enumerate() {
-            let s = &mut out[slot];
-            let trunk = &self.bodies[robot.bodies[0]];
-            let base = *trunk.position();
-            s.base_pos = base.translation;
-            s.base_rot = base.rotation;
-            s.base_linvel = trunk.velocity_at_point(base.translation);
-            s.base_angvel = trunk.angvel();
-            let mut gap: f32 = 0.0;
-            for (j, joint) in model.joints.iter().enumerate() {
-                let pb = &self.bodies[robot.bodies[joint.parent_body]];
-                let cb = &self.bodies[robot.bodies[joint.child_body]];
-                s.q[j] = joint_angle(*pb.rotation(), *cb.rotation(), joint.axis);
-                s.qd[j] = joint_speed(*cb.rotation(), pb.angvel(), cb.angvel(), joint.axis);
-                let anchor = pb.position().transform_point(joint.origin.translation);
-                gap = gap.max(anchor.distance(cb.translation()));
-            }
-            s.max_joint_gap = gap;
-            for (f, foot) in model.feet.iter().enumerate() {
-                let b = &self.bodies[robot.bodies[foot.body]];
-                let p = b.position().transform_point(foot.offset);
-                s.foot_pos[f] = p;
-                s.foot_vel[f] = b.velocity_at_point(p);
-            }
-            s.foot_force = [0.0; NUM_FEET];
-            s.trunk_force = 0.0;
-            s.penalised_contacts = 0;
-            s.penalised_bodies = 0;
+        for (slot, s) in out.iter_mut().enumerate().take(self.robots.len()) {
+            self.read_kinematics(model, slot, s);
+            s.clear_contacts();
         }
         let inv_dt = 1.0 / self.integration.dt;
         for pair in self.narrow_phase.contact_pairs() {
@@ -327,7 +329,7 @@ impl RobotWorld {
             let slot = (tag >> 32) as usize;
             let body = ((tag >> 8) & 0xff_ffff) as u32;
             let force = pair.total_impulse_magnitude() * inv_dt;
-            let s = &mut out[slot];
+            let Some(s) = out.get_mut(slot) else { continue };
             match tag & 0xff {
                 0 => s.trunk_force += force,
                 1 => {

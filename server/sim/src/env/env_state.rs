@@ -1,0 +1,78 @@
+//! The episode state of one env: RNG, mode, commands, clocks, action history, randomisation.
+
+use rand::RngExt;
+use rand_chacha::ChaCha8Rng;
+
+use crate::robot::NUM_JOINTS;
+use crate::task::{CommandRanges, Randomization, TaskConfig, TaskMode, uniform};
+
+use super::EnvId;
+
+/// Per-env episode state (everything that is not physics).
+#[derive(Clone, Debug)]
+pub struct EnvState {
+    /// Which env this is.
+    pub id: EnvId,
+    /// The env's own random stream (seeded from the batch seed and the env index).
+    pub rng: ChaCha8Rng,
+    /// Current task mode.
+    pub mode: TaskMode,
+    /// Velocity command (vx, vy in the heading frame, wz).
+    pub command: [f32; 3],
+    /// Policy steps since the episode began.
+    pub episode_step: u32,
+    /// Actions a_t, a_{t-1}, a_{t-2} (clipped).
+    pub actions: [[f32; NUM_JOINTS]; 3],
+    /// Joint speeds at the previous policy step.
+    pub last_qd: [f32; NUM_JOINTS],
+    /// Randomised physical values of this episode.
+    pub randomization: Randomization,
+    /// Spawn point (world x, y) of this episode.
+    pub origin: [f32; 2],
+    /// Terrain difficulty level (row of the terrain grid).
+    pub terrain_level: u32,
+    /// Terrain type (column of the terrain grid).
+    pub terrain_type: u32,
+}
+
+/// Draw a command from `ranges`; components below `zero_below` in magnitude become 0.
+pub fn sample_command(ranges: &CommandRanges, zero_below: f32, rng: &mut ChaCha8Rng) -> [f32; 3] {
+    let mut c = [uniform(rng, ranges.vx), uniform(rng, ranges.vy), uniform(rng, ranges.wz)];
+    for v in &mut c {
+        if v.abs() < zero_below {
+            *v = 0.0;
+        }
+    }
+    c
+}
+
+impl EnvState {
+    /// Draw a task mode.
+    pub fn sample_mode(&mut self, cfg: &TaskConfig) {
+        let biped = self.rng.random::<f32>() < cfg.modes.biped_probability;
+        self.mode = if biped { TaskMode::Biped } else { TaskMode::Quad };
+    }
+
+    /// Draw commands for the current mode.
+    pub fn sample_command(&mut self, cfg: &TaskConfig) {
+        let ranges = match self.mode {
+            TaskMode::Biped => &cfg.commands.biped,
+            TaskMode::Quad => &cfg.commands.quad,
+        };
+        self.command = sample_command(ranges, cfg.commands.zero_below, &mut self.rng);
+    }
+
+    /// Gait clock Phi in [0, 1) at the current step.
+    pub fn gait_phase(&self, cfg: &TaskConfig) -> f32 {
+        let t = self.episode_step as f32 * cfg.policy_dt();
+        (t / cfg.gait.period_s).rem_euclid(1.0)
+    }
+
+    /// Phase offsets per foot for the current mode.
+    pub fn gait_offsets(&self, cfg: &TaskConfig) -> [f32; 4] {
+        match self.mode {
+            TaskMode::Biped => cfg.gait.offsets_biped,
+            TaskMode::Quad => cfg.gait.offsets_quad,
+        }
+    }
+}

@@ -1,0 +1,429 @@
+//! A group of envs sharing one physics world, stepped by one thread. The group is the unit of
+//! parallelism; its size comes from the config, never from the thread count, so results do not
+//! depend on the number of threads.
+
+use std::time::Instant;
+
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rapier3d::math::{Pose, Rotation, Vec3};
+
+use crate::physics::{ActuatorParams, RobotState, RobotWorld};
+use crate::robot::{NUM_FEET, NUM_JOINTS, RobotModel};
+use crate::task::{
+    self, LABEL_DIM, OBS_DIM, PRIVILEGED_DIM, Randomization, RewardInputs, RewardTerm, TaskContext, TaskMode,
+    euler_pitch, gait_coefficients, heading_direction, projected_gravity, to_heading_frame, uniform,
+};
+use crate::terrain::Terrain;
+
+use super::env_state::EnvState;
+use super::output::OutputChunk;
+use super::EnvId;
+
+/// Time spent per stage (seconds, summed over groups).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct StageTimes {
+    /// Physics substeps.
+    pub physics: f64,
+    /// Observations, labels, rewards, episode logic and resets.
+    pub task: f64,
+}
+
+/// Envs sharing one rapier world.
+pub struct EnvGroup {
+    world: RobotWorld,
+    envs: Vec<EnvState>,
+    states: Vec<RobotState>,
+    actuators: Vec<ActuatorParams>,
+    targets: Vec<f32>,
+    torques: Vec<f32>,
+    /// Stage timers of this group.
+    pub times: StageTimes,
+    /// Envs reset because their physics went non-finite, since creation.
+    pub nonfinite_resets: u64,
+}
+
+/// Everything a group needs to read while stepping.
+pub struct Shared<'a> {
+    /// The robot.
+    pub model: &'a RobotModel,
+    /// Derived task data.
+    pub ctx: &'a TaskContext,
+    /// The terrain.
+    pub terrain: &'a Terrain,
+    /// Total envs in the batch (for spawn layout).
+    pub num_envs: usize,
+    /// Skip the task (observations, rewards, episodes): bare physics for benchmarks.
+    pub physics_only: bool,
+}
+
+/// Stream id of env `index`'s RNG: distinct per env, independent of grouping.
+fn env_rng(seed: u64, index: u32) -> ChaCha8Rng {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    rng.set_stream(index as u64);
+    rng
+}
+
+impl EnvGroup {
+    /// A group of envs `first .. first + count`, all reset.
+    pub fn new(sh: &Shared, first: usize, count: usize, seed: u64) -> Self {
+        let world = RobotWorld::new(sh.model, count, sh.terrain.collider(), &sh.ctx.config.physics);
+        let nominal = Randomization::nominal(&sh.model.config);
+        let envs = (0..count)
+            .map(|i| {
+                let id = EnvId((first + i) as u32);
+                EnvState {
+                    id,
+                    rng: env_rng(seed, id.0),
+                    mode: TaskMode::Quad,
+                    command: [0.0; 3],
+                    episode_step: 0,
+                    actions: [[0.0; NUM_JOINTS]; 3],
+                    last_qd: [0.0; NUM_JOINTS],
+                    randomization: nominal,
+                    origin: [0.0; 2],
+                    terrain_level: 0,
+                    terrain_type: 0,
+                }
+            })
+            .collect();
+        let actuator = nominal.physical_params(&sh.model.config).actuator;
+        Self {
+            world,
+            envs,
+            states: vec![RobotState::default(); count],
+            actuators: vec![actuator; count],
+            targets: vec![0.0; count * NUM_JOINTS],
+            torques: vec![0.0; count * NUM_JOINTS],
+            times: StageTimes::default(),
+            nonfinite_resets: 0,
+        }
+    }
+
+    /// The physics world (read-only).
+    pub fn world(&self) -> &RobotWorld {
+        &self.world
+    }
+
+    /// The env states (read-only).
+    pub fn envs(&self) -> &[EnvState] {
+        &self.envs
+    }
+
+    /// The robot states read after the last step.
+    pub fn states(&self) -> &[RobotState] {
+        &self.states
+    }
+
+    /// Mutable world, for tests that poke the physics.
+    #[doc(hidden)]
+    pub fn world_mut(&mut self) -> &mut RobotWorld {
+        &mut self.world
+    }
+
+    /// Reset env `slot` to a fresh episode. `first` spreads the episode start (legged_gym's
+    /// random initial episode length) when the config asks for it.
+    pub fn reset_env(&mut self, sh: &Shared, slot: usize, first: bool) {
+        let cfg = &sh.ctx.config;
+        let model = sh.model;
+        let env = &mut self.envs[slot];
+        env.randomization = Randomization::sample(&cfg.randomization, &model.config, &mut env.rng);
+        let params = env.randomization.physical_params(&model.config);
+        self.world.set_physical_params(model, slot, &params);
+        self.actuators[slot] = params.actuator;
+
+        // Table IV: joints = default + offsets, clipped to the simulated limits.
+        let init = &cfg.init;
+        let mut q = sh.ctx.default_q;
+        for (j, qj) in q.iter_mut().enumerate() {
+            let range = match j % model.config.joints_per_leg {
+                0 => init.hip,
+                1 => init.thigh,
+                _ => init.calf,
+            };
+            let joint = &model.joints[j];
+            *qj = (*qj + uniform(&mut env.rng, range)).clamp(joint.sim_lower, joint.sim_upper);
+        }
+        let pitch = uniform(&mut env.rng, init.pitch);
+        let yaw = uniform(&mut env.rng, init.yaw);
+        let rot = Rotation::from_rotation_z(yaw) * Rotation::from_rotation_y(pitch);
+        let linvel = Vec3::new(
+            uniform(&mut env.rng, init.linvel),
+            uniform(&mut env.rng, init.linvel),
+            uniform(&mut env.rng, init.linvel),
+        );
+        let angvel = Vec3::new(
+            uniform(&mut env.rng, init.angvel),
+            uniform(&mut env.rng, init.angvel),
+            uniform(&mut env.rng, init.angvel),
+        );
+        // Lowest point of the robot below the trunk origin, from the colliders' bounding spheres.
+        let local = model.forward_kinematics(&q);
+        let lowest = sh
+            .ctx
+            .collider_bounds
+            .iter()
+            .map(|(b, c, r)| (rot * local[*b].transform_point(*c)).z - r)
+            .fold(0.0f32, f32::min);
+        let (x, y) = sh.terrain.env_origin(env.id.index(), sh.num_envs);
+        let ground = sh.terrain.max_height_within(x, y, 0.6);
+        let base = Pose::from_parts(Vec3::new(x, y, ground - lowest + init.spawn_clearance), rot);
+        self.world.set_robot_state(model, slot, base, linvel, angvel, &q);
+        env.origin = [x, y];
+
+        env.sample_mode(cfg);
+        env.sample_command(cfg);
+        env.episode_step = if first && cfg.env.random_initial_episode_step {
+            env.rng.random_range(0..sh.ctx.max_episode_steps)
+        } else {
+            0
+        };
+        env.actions = [[0.0; NUM_JOINTS]; 3];
+        env.last_qd = [0.0; NUM_JOINTS];
+        let s = &mut self.states[slot];
+        self.world.read_kinematics(model, slot, s);
+        s.clear_contacts();
+    }
+
+    /// Reset every env and write the first observations.
+    pub fn reset_all(&mut self, sh: &Shared, first: bool, out: &mut OutputChunk) {
+        for slot in 0..self.envs.len() {
+            self.reset_env(sh, slot, first);
+        }
+        self.write_all(sh, out);
+    }
+
+    /// Reset the envs whose `mask` entry is non-zero and rewrite their rows of `out`.
+    pub fn reset_masked(&mut self, sh: &Shared, mask: &[u8], out: &mut OutputChunk) {
+        for slot in 0..self.envs.len() {
+            if mask[slot] != 0 {
+                self.reset_env(sh, slot, false);
+                self.write_env(sh, slot, out);
+            }
+        }
+    }
+
+    fn write_all(&mut self, sh: &Shared, out: &mut OutputChunk) {
+        for slot in 0..self.envs.len() {
+            self.write_env(sh, slot, out);
+        }
+    }
+
+    fn write_env(&mut self, sh: &Shared, slot: usize, out: &mut OutputChunk) {
+        let env = &mut self.envs[slot];
+        let s = &self.states[slot];
+        write_observation(sh, env, s, &mut out.obs[slot * OBS_DIM..(slot + 1) * OBS_DIM]);
+        write_labels(sh, s, &mut out.labels[slot * LABEL_DIM..(slot + 1) * LABEL_DIM]);
+        out.privileged[slot * PRIVILEGED_DIM..(slot + 1) * PRIVILEGED_DIM]
+            .copy_from_slice(&env.randomization.privileged());
+        out.mode[slot] = env.mode as u8;
+        out.terrain_level[slot] = env.terrain_level;
+    }
+
+    /// One policy step of every env: actions [len, 12] (already validated finite).
+    pub fn step(&mut self, sh: &Shared, actions: &[f32], autoreset: bool, out: &mut OutputChunk) {
+        let t0 = Instant::now();
+        let cfg = &sh.ctx.config;
+        let clip = cfg.env.clip_actions;
+        for (slot, env) in self.envs.iter_mut().enumerate() {
+            env.actions[2] = env.actions[1];
+            env.actions[1] = env.actions[0];
+            for j in 0..NUM_JOINTS {
+                let a = actions[slot * NUM_JOINTS + j].clamp(-clip, clip);
+                env.actions[0][j] = a;
+                self.targets[slot * NUM_JOINTS + j] = sh.ctx.default_q[j] + cfg.env.action_scale * a;
+            }
+        }
+        for _ in 0..cfg.env.decimation {
+            self.world.step(sh.model, &self.targets, &self.actuators, &mut self.torques);
+        }
+        self.world.read_states(sh.model, &mut self.states);
+        out.torques.copy_from_slice(&self.torques);
+        let t1 = Instant::now();
+        self.times.physics += (t1 - t0).as_secs_f64();
+        if sh.physics_only {
+            // Bare physics: only guard against blow-ups.
+            for slot in 0..self.envs.len() {
+                out.nonfinite[slot] = 0;
+                if !self.states[slot].is_finite() {
+                    out.nonfinite[slot] = 1;
+                    self.nonfinite_resets += 1;
+                    self.reset_env(sh, slot, false);
+                }
+            }
+            return;
+        }
+        for slot in 0..self.envs.len() {
+            self.step_task(sh, slot, autoreset, out);
+        }
+        self.times.task += t1.elapsed().as_secs_f64();
+    }
+
+    /// Episode logic, rewards and observations of env `slot` after its physics step.
+    fn step_task(&mut self, sh: &Shared, slot: usize, autoreset: bool, out: &mut OutputChunk) {
+        let ctx = sh.ctx;
+        let cfg = &ctx.config;
+        self.envs[slot].episode_step += 1;
+        let finite = self.states[slot].is_finite();
+        let terms = &mut out.reward_terms[slot * RewardTerm::COUNT..(slot + 1) * RewardTerm::COUNT];
+        out.nonfinite[slot] = u8::from(!finite);
+        out.episode_length[slot] = 0;
+        let (terminated, truncated);
+        if finite {
+            let s = &self.states[slot];
+            terminated = s.trunk_force > cfg.rewards.contact_threshold;
+            truncated = !terminated && self.envs[slot].episode_step >= ctx.max_episode_steps;
+            let inputs = reward_inputs(sh, &self.envs[slot], s, terminated, &self.torques[slot * NUM_JOINTS..]);
+            let raw = task::raw_terms(&inputs, &ctx.reward, cfg);
+            let ind = task::indicators(self.envs[slot].mode == TaskMode::Biped, inputs.pitch, cfg);
+            out.reward[slot] = task::weigh_terms(&raw, &ind, cfg, terms);
+        } else {
+            // A physics blow-up: the transition carries no reward and ends without bootstrap.
+            self.nonfinite_resets += 1;
+            terminated = true;
+            truncated = false;
+            terms.fill(0.0);
+            out.reward[slot] = 0.0;
+        }
+        out.terminated[slot] = u8::from(terminated);
+        out.truncated[slot] = u8::from(truncated);
+        let done = terminated || truncated;
+        let range = |dim: usize| slot * dim..(slot + 1) * dim;
+        if done {
+            out.episode_length[slot] = self.envs[slot].episode_step;
+            if finite {
+                let (env, s) = (&mut self.envs[slot], &self.states[slot]);
+                write_observation(sh, env, s, &mut out.final_obs[range(OBS_DIM)]);
+                write_labels(sh, s, &mut out.final_labels[range(LABEL_DIM)]);
+            } else {
+                out.final_obs[range(OBS_DIM)].fill(0.0);
+                out.final_labels[range(LABEL_DIM)].fill(0.0);
+            }
+            out.final_privileged[range(PRIVILEGED_DIM)].copy_from_slice(&self.envs[slot].randomization.privileged());
+            if autoreset || !finite {
+                self.reset_env(sh, slot, false);
+            }
+        } else {
+            let env = &mut self.envs[slot];
+            env.last_qd = self.states[slot].qd;
+            let step = env.episode_step;
+            let mut resample_command = step % ctx.command_interval == 0;
+            if step % ctx.mode_interval == 0 {
+                let before = env.mode;
+                env.sample_mode(cfg);
+                resample_command |= env.mode != before;
+            }
+            if resample_command {
+                env.sample_command(cfg);
+            }
+            if ctx.push_interval.is_some_and(|p| step % p == 0) {
+                let v = cfg.randomization.push_velocity;
+                let delta = Vec3::new(uniform(&mut env.rng, [-v, v]), uniform(&mut env.rng, [-v, v]), 0.0);
+                self.world.add_base_velocity(slot, delta);
+            }
+        }
+        self.write_env(sh, slot, out);
+    }
+}
+
+/// Foot sole height above the highest terrain within `radius` of each foot.
+fn foot_clearance_heights(sh: &Shared, s: &RobotState, radius: f32) -> [f32; NUM_FEET] {
+    std::array::from_fn(|f| {
+        let p = s.foot_pos[f];
+        p.z - sh.model.feet[f].radius - sh.terrain.max_height_within(p.x, p.y, radius)
+    })
+}
+
+fn reward_inputs(sh: &Shared, env: &EnvState, s: &RobotState, terminated: bool, torques: &[f32]) -> RewardInputs {
+    let cfg = &sh.ctx.config;
+    let inv = s.base_rot.inverse();
+    let heading = heading_direction(s.base_rot);
+    let gravity = projected_gravity(s.base_rot);
+    let normal = sh.terrain.normal(s.base_pos.x, s.base_pos.y);
+    let phase = env.gait_phase(cfg);
+    let coeffs = |offsets: [f32; 4]| {
+        std::array::from_fn(|f| gait_coefficients(&sh.ctx.cdf, phase + offsets[f], cfg.gait.swing_ratio))
+    };
+    RewardInputs {
+        terminated,
+        penalised_contacts: s.penalised_contacts,
+        base_angvel_b: inv * s.base_angvel,
+        base_linvel_b: inv * s.base_linvel,
+        heading_linvel: to_heading_frame(heading, s.base_linvel),
+        yaw_rate: s.base_angvel.z,
+        command: env.command,
+        base_height: s.base_pos.z - sh.terrain.height(s.base_pos.x, s.base_pos.y),
+        terrain_normal_b: inv * normal,
+        pitch: euler_pitch(s.base_rot),
+        roll_proxy: gravity.y,
+        q: s.q,
+        qd: s.qd,
+        qd_prev: env.last_qd,
+        actions: env.actions,
+        torques: std::array::from_fn(|j| torques[j]),
+        foot_force: s.foot_force,
+        foot_speed: s.foot_vel.map(|v| v.length()),
+        foot_speed_xy: s.foot_vel.map(|v| v.truncate().length()),
+        foot_clearance_height: foot_clearance_heights(sh, s, cfg.rewards.foot_clearance_radius),
+        gait_quad: coeffs(cfg.gait.offsets_quad),
+        gait_biped: coeffs(cfg.gait.offsets_biped),
+    }
+}
+
+/// Write o_t of one env (scaled, noised, clipped) into `row` (53 values).
+pub fn write_observation(sh: &Shared, env: &mut EnvState, s: &RobotState, row: &mut [f32]) {
+    let ctx = sh.ctx;
+    let cfg = &ctx.config;
+    let inv = s.base_rot.inverse();
+    let g = projected_gravity(s.base_rot);
+    let w = inv * s.base_angvel;
+    let phase = env.gait_phase(cfg);
+    let offsets = env.gait_offsets(cfg);
+    let biped = env.mode == TaskMode::Biped;
+    let mut i = 0;
+    let mut push = |v: f32| {
+        row[i] = v;
+        i += 1;
+    };
+    env.command.iter().for_each(|&c| push(c));
+    push(g.y);
+    push(euler_pitch(s.base_rot));
+    push(g.z);
+    [w.x, w.y, w.z].iter().for_each(|&c| push(c));
+    (0..NUM_JOINTS).for_each(|j| push(s.q[j] - ctx.default_q[j]));
+    s.qd.iter().for_each(|&c| push(c));
+    env.actions[0].iter().for_each(|&c| push(c));
+    push(f32::from(u8::from(biped)));
+    push(f32::from(u8::from(!biped)));
+    for (f, theta) in offsets.iter().enumerate() {
+        let rear = f >= 2;
+        push(if biped && rear { 0.0 } else { (std::f32::consts::TAU * (phase + theta)).sin() });
+    }
+    push(cfg.gait.swing_ratio);
+    push(1.0 - cfg.gait.swing_ratio);
+    debug_assert_eq!(i, OBS_DIM);
+    let clip = cfg.env.clip_observations;
+    for k in 0..OBS_DIM {
+        let mut v = row[k] * ctx.obs_scale[k];
+        let n = ctx.obs_noise[k];
+        if n > 0.0 {
+            v += n * (2.0 * env.rng.random::<f32>() - 1.0);
+        }
+        row[k] = v.clamp(-clip, clip);
+    }
+}
+
+/// Write e_t of one env into `row` (14 values).
+pub fn write_labels(sh: &Shared, s: &RobotState, row: &mut [f32]) {
+    let inv = s.base_rot.inverse();
+    let v = inv * s.base_linvel;
+    let n = inv * sh.terrain.normal(s.base_pos.x, s.base_pos.y);
+    let threshold = sh.ctx.config.rewards.contact_threshold;
+    row[0..3].copy_from_slice(&[v.x, v.y, v.z]);
+    for f in 0..NUM_FEET {
+        row[3 + f] = f32::from(u8::from(s.foot_force[f] > threshold));
+        let p = s.foot_pos[f];
+        row[10 + f] = p.z - sh.model.feet[f].radius - sh.terrain.height(p.x, p.y);
+    }
+    row[7..10].copy_from_slice(&[n.x, n.y, n.z]);
+}

@@ -1,0 +1,13 @@
+//! Batches of envs: per-env episode state, world groups, the parallel batch and its outputs.
+
+mod env_id;
+mod env_state;
+mod group;
+mod output;
+mod vec_env;
+
+pub use env_id::EnvId;
+pub use env_state::{EnvState, sample_command};
+pub use group::{StageTimes, write_labels, write_observation};
+pub use output::{OutputChunk, StepOutput};
+pub use vec_env::{VecEnv, VecEnvOptions, validate_actions};

@@ -1,0 +1,264 @@
+//! N envs stepped in parallel: the batch a learner or the service drives.
+
+use std::sync::Arc;
+
+use rayon::prelude::*;
+
+use crate::error::SimError;
+use crate::physics::RobotState;
+use crate::robot::{NUM_JOINTS, RobotModel};
+use crate::task::{TaskConfig, TaskContext};
+use crate::terrain::Terrain;
+
+use super::group::{EnvGroup, Shared, StageTimes};
+use super::output::StepOutput;
+
+/// How a batch is built.
+#[derive(Clone, Debug, PartialEq)]
+pub struct VecEnvOptions {
+    /// Number of envs (>= 1).
+    pub num_envs: usize,
+    /// Seed of every random draw; env i uses stream i of it.
+    pub seed: u64,
+    /// Worker threads (0 = one per core).
+    pub threads: usize,
+    /// Skip the task (bare physics, for benchmarks).
+    pub physics_only: bool,
+    /// Reset ended envs inside the step (else the client resets them with a mask).
+    pub autoreset: bool,
+}
+
+impl Default for VecEnvOptions {
+    fn default() -> Self {
+        Self { num_envs: 1, seed: 0, threads: 0, physics_only: false, autoreset: true }
+    }
+}
+
+/// A batch of Go2 envs.
+pub struct VecEnv {
+    model: Arc<RobotModel>,
+    ctx: Arc<TaskContext>,
+    terrain: Arc<Terrain>,
+    groups: Vec<EnvGroup>,
+    pool: rayon::ThreadPool,
+    out: StepOutput,
+    options: VecEnvOptions,
+}
+
+/// Check an action tensor: `num_envs * 12` finite values.
+pub fn validate_actions(actions: &[f32], num_envs: usize) -> Result<(), SimError> {
+    let expected = num_envs * NUM_JOINTS;
+    if actions.len() != expected {
+        return Err(SimError::Shape {
+            name: "actions".into(),
+            got: actions.len(),
+            expected,
+            detail: format!("{num_envs} envs x {NUM_JOINTS} joints"),
+        });
+    }
+    if let Some(index) = actions.iter().position(|a| !a.is_finite()) {
+        return Err(SimError::NonFinite {
+            name: "actions".into(),
+            index,
+            env: index / NUM_JOINTS,
+            value: actions[index],
+        });
+    }
+    Ok(())
+}
+
+impl VecEnv {
+    /// Build and reset a batch.
+    pub fn new(
+        model: Arc<RobotModel>,
+        config: TaskConfig,
+        terrain: Arc<Terrain>,
+        options: VecEnvOptions,
+    ) -> Result<Self, SimError> {
+        config.validate()?;
+        if options.num_envs == 0 {
+            return Err(SimError::invalid("num_envs", 0, "at least 1"));
+        }
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(options.threads)
+            .thread_name(|i| format!("unigait-env-{i}"))
+            .build()
+            .map_err(|e| SimError::invalid("threads", options.threads, e.to_string()))?;
+        let ctx = Arc::new(TaskContext::new(config, &model));
+        let epw = ctx.config.env.envs_per_world;
+        let n = options.num_envs;
+        let mut env = Self {
+            groups: Vec::new(),
+            out: StepOutput::new(n),
+            model,
+            ctx,
+            terrain,
+            pool,
+            options,
+        };
+        let firsts: Vec<usize> = (0..n).step_by(epw).collect();
+        let sh = env.shared();
+        let seed = env.options.seed;
+        let groups: Vec<EnvGroup> = env.pool.install(|| {
+            firsts.par_iter().map(|&first| EnvGroup::new(&sh, first, epw.min(n - first), seed)).collect()
+        });
+        env.groups = groups;
+        env.reset_all(true);
+        Ok(env)
+    }
+
+    fn shared(&self) -> Shared<'_> {
+        Shared {
+            model: &self.model,
+            ctx: &self.ctx,
+            terrain: &self.terrain,
+            num_envs: self.options.num_envs,
+            physics_only: self.options.physics_only,
+        }
+    }
+
+    fn reset_all(&mut self, first: bool) {
+        let epw = self.ctx.config.env.envs_per_world;
+        let sh = Shared {
+            model: &self.model,
+            ctx: &self.ctx,
+            terrain: &self.terrain,
+            num_envs: self.options.num_envs,
+            physics_only: self.options.physics_only,
+        };
+        let chunks = self.out.chunks_mut(epw);
+        let groups = &mut self.groups;
+        self.pool.install(|| {
+            groups.par_iter_mut().zip(chunks).for_each(|(g, mut chunk)| g.reset_all(&sh, first, &mut chunk));
+        });
+    }
+
+    /// Reset every env (a new episode everywhere) and return the first observations.
+    pub fn reset(&mut self) -> &StepOutput {
+        self.reset_all(false);
+        &self.out
+    }
+
+    /// Reset the envs where `mask` is non-zero (`mask` has one entry per env).
+    pub fn reset_envs(&mut self, mask: &[u8]) -> Result<&StepOutput, SimError> {
+        let n = self.options.num_envs;
+        if mask.len() != n {
+            return Err(SimError::Shape { name: "reset_mask".into(), got: mask.len(), expected: n, detail: format!("{n} envs") });
+        }
+        let epw = self.ctx.config.env.envs_per_world;
+        let sh = Shared {
+            model: &self.model,
+            ctx: &self.ctx,
+            terrain: &self.terrain,
+            num_envs: n,
+            physics_only: self.options.physics_only,
+        };
+        let chunks = self.out.chunks_mut(epw);
+        let groups = &mut self.groups;
+        self.pool.install(|| {
+            groups
+                .par_iter_mut()
+                .zip(chunks)
+                .zip(mask.par_chunks(epw))
+                .for_each(|((g, mut chunk), m)| g.reset_masked(&sh, m, &mut chunk));
+        });
+        Ok(&self.out)
+    }
+
+    /// Step every env with `actions` ([num_envs, 12], row-major).
+    pub fn step(&mut self, actions: &[f32]) -> Result<&StepOutput, SimError> {
+        validate_actions(actions, self.options.num_envs)?;
+        let epw = self.ctx.config.env.envs_per_world;
+        let autoreset = self.options.autoreset;
+        let sh = Shared {
+            model: &self.model,
+            ctx: &self.ctx,
+            terrain: &self.terrain,
+            num_envs: self.options.num_envs,
+            physics_only: self.options.physics_only,
+        };
+        let chunks = self.out.chunks_mut(epw);
+        let groups = &mut self.groups;
+        self.pool.install(|| {
+            groups
+                .par_iter_mut()
+                .zip(chunks)
+                .zip(actions.par_chunks(epw * NUM_JOINTS))
+                .for_each(|((g, mut chunk), a)| g.step(&sh, a, autoreset, &mut chunk));
+        });
+        Ok(&self.out)
+    }
+
+    /// The latest results.
+    pub fn output(&self) -> &StepOutput {
+        &self.out
+    }
+
+    /// Number of envs.
+    pub fn num_envs(&self) -> usize {
+        self.options.num_envs
+    }
+
+    /// Options the batch was built with.
+    pub fn options(&self) -> &VecEnvOptions {
+        &self.options
+    }
+
+    /// The task context (config and derived values).
+    pub fn context(&self) -> &TaskContext {
+        &self.ctx
+    }
+
+    /// The robot model.
+    pub fn model(&self) -> &RobotModel {
+        &self.model
+    }
+
+    /// The terrain.
+    pub fn terrain(&self) -> &Terrain {
+        &self.terrain
+    }
+
+    /// Worst joint anchor separation over all envs after the last step (m).
+    pub fn max_joint_gap(&self) -> f32 {
+        self.groups.iter().flat_map(|g| g.states()).map(|s| s.max_joint_gap).fold(0.0, f32::max)
+    }
+
+    /// Measured state of env `i` after the last step.
+    pub fn robot_state(&self, i: usize) -> &RobotState {
+        let epw = self.ctx.config.env.envs_per_world;
+        &self.groups[i / epw].states()[i % epw]
+    }
+
+    /// Episode state of env `i`.
+    pub fn env_state(&self, i: usize) -> &super::EnvState {
+        let epw = self.ctx.config.env.envs_per_world;
+        &self.groups[i / epw].envs()[i % epw]
+    }
+
+    /// World poses of env `i`'s bodies (trunk first), for visualisation.
+    pub fn body_poses(&self, i: usize) -> Vec<rapier3d::math::Pose> {
+        let epw = self.ctx.config.env.envs_per_world;
+        self.groups[i / epw].world().body_poses(i % epw)
+    }
+
+    /// Time per stage summed over groups since creation (CPU seconds).
+    pub fn stage_times(&self) -> StageTimes {
+        self.groups.iter().fold(StageTimes::default(), |acc, g| StageTimes {
+            physics: acc.physics + g.times.physics,
+            task: acc.task + g.times.task,
+        })
+    }
+
+    /// Envs reset because their physics went non-finite, since creation.
+    pub fn nonfinite_resets(&self) -> u64 {
+        self.groups.iter().map(|g| g.nonfinite_resets).sum()
+    }
+
+    /// Make env `i`'s physics non-finite (test hook for the blow-up guard).
+    #[doc(hidden)]
+    pub fn poison_env(&mut self, i: usize) {
+        let epw = self.ctx.config.env.envs_per_world;
+        self.groups[i / epw].world_mut().poison(i % epw);
+    }
+}

@@ -1,0 +1,527 @@
+//! The task configuration: every number of the locomotion task, with the paper's values (and our
+//! documented decisions) as defaults. Plain data: derived values are methods, nothing is mutated
+//! after loading.
+
+use serde::{Deserialize, Serialize};
+
+use super::reward_terms::RewardTerm;
+use crate::error::SimError;
+use crate::physics::PhysicsParams;
+
+/// A closed range `[lo, hi]` drawn uniformly.
+pub type Range = [f32; 2];
+
+/// Everything that defines a batch of envs except the robot and the terrain.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TaskConfig {
+    /// Physics numerics.
+    pub physics: PhysicsParams,
+    /// Episode, control and batching.
+    pub env: EnvParams,
+    /// Velocity commands.
+    pub commands: CommandParams,
+    /// Task modes (biped / quad).
+    pub modes: ModeParams,
+    /// The gait clock and the periodic reward.
+    pub gait: GaitParams,
+    /// Initial state distribution (Table IV).
+    pub init: InitParams,
+    /// Domain randomisation (Table V).
+    pub randomization: RandomizationParams,
+    /// Reward weights, targets and switches (Table II).
+    pub rewards: RewardParams,
+    /// Observation noise.
+    pub noise: NoiseParams,
+}
+
+/// Episode, control and batching.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EnvParams {
+    /// Episode length (s). Default 18 (900 policy steps).
+    pub episode_length_s: f32,
+    /// Physics steps per policy step. Default 4 (policy at 50 Hz).
+    pub decimation: usize,
+    /// Joint target = default + action_scale * action. Default 0.25.
+    pub action_scale: f32,
+    /// Actions are clipped to +-this. Default 100.
+    pub clip_actions: f32,
+    /// Observations are clipped to +-this. Default 100.
+    pub clip_observations: f32,
+    /// Envs per physics world. Default 32. Fixed by config, never by thread count, so results do
+    /// not depend on how many threads step them.
+    pub envs_per_world: usize,
+    /// Spread the first episodes' start times uniformly over the episode (legged_gym's
+    /// `init_at_random_ep_len`), so resets do not come in waves. Default true.
+    pub random_initial_episode_step: bool,
+}
+
+impl Default for EnvParams {
+    fn default() -> Self {
+        Self {
+            episode_length_s: 18.0,
+            decimation: 4,
+            action_scale: 0.25,
+            clip_actions: 100.0,
+            clip_observations: 100.0,
+            envs_per_world: 32,
+            random_initial_episode_step: true,
+        }
+    }
+}
+
+/// Command ranges for one task mode.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CommandRanges {
+    /// Forward speed in the heading frame (m/s).
+    pub vx: Range,
+    /// Lateral speed in the heading frame (m/s).
+    pub vy: Range,
+    /// Yaw rate (rad/s).
+    pub wz: Range,
+}
+
+/// Velocity commands.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CommandParams {
+    /// Commands are redrawn every this many seconds and at reset. Default 10.
+    pub resampling_time_s: f32,
+    /// Ranges in quad mode. Default vx [-1, 1.5], vy [-0.5, 0.5], wz [-1, 1].
+    pub quad: CommandRanges,
+    /// Ranges in biped mode. Default vx [-0.5, 0.5], vy [-0.3, 0.3], wz [-0.5, 0.5].
+    pub biped: CommandRanges,
+    /// A command component whose magnitude is below this is set to 0. Default 0.1.
+    pub zero_below: f32,
+}
+
+impl Default for CommandParams {
+    fn default() -> Self {
+        Self {
+            resampling_time_s: 10.0,
+            quad: CommandRanges { vx: [-1.0, 1.5], vy: [-0.5, 0.5], wz: [-1.0, 1.0] },
+            biped: CommandRanges { vx: [-0.5, 0.5], vy: [-0.3, 0.3], wz: [-0.5, 0.5] },
+            zero_below: 0.1,
+        }
+    }
+}
+
+/// Task modes.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ModeParams {
+    /// The mode is redrawn every this many seconds and at reset. Default 6.
+    pub resampling_time_s: f32,
+    /// Probability of biped mode at each draw. Default 0.5.
+    pub biped_probability: f32,
+}
+
+impl Default for ModeParams {
+    fn default() -> Self {
+        Self { resampling_time_s: 6.0, biped_probability: 0.5 }
+    }
+}
+
+/// Gait clock and periodic reward.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct GaitParams {
+    /// Gait period T_gait (s). Default 0.45.
+    pub period_s: f32,
+    /// Swing share of each foot's cycle. Default 0.4.
+    pub swing_ratio: f32,
+    /// Phase offsets theta per foot (FL, FR, RL, RR) in quad mode. Default trot [0, 0.5, 0.5, 0].
+    pub offsets_quad: [f32; 4],
+    /// Phase offsets in biped mode (rear entries unused). Default [0, 0.5, 0, 0].
+    pub offsets_biped: [f32; 4],
+    /// Von Mises concentration of the phase boundaries (1/rad^2). Default 20.
+    pub kappa: f32,
+    /// Contact force that counts as one unit of gait violation (N). Default 100 (legged_gym's
+    /// `max_contact_force`); a swing foot carrying half a stance load costs about 0.4.
+    pub force_scale: f32,
+    /// Foot speed that counts as one unit of gait violation (m/s). Default 1.
+    pub speed_scale: f32,
+}
+
+impl Default for GaitParams {
+    fn default() -> Self {
+        Self {
+            period_s: 0.45,
+            swing_ratio: 0.4,
+            offsets_quad: [0.0, 0.5, 0.5, 0.0],
+            offsets_biped: [0.0, 0.5, 0.0, 0.0],
+            kappa: 20.0,
+            force_scale: 100.0,
+            speed_scale: 1.0,
+        }
+    }
+}
+
+/// Initial state (Table IV). Joint ranges are offsets from the default pose.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct InitParams {
+    /// Hip offset (rad). Default [-0.2, 0.2].
+    pub hip: Range,
+    /// Thigh offset (rad). Default [-1.0, 1.0].
+    pub thigh: Range,
+    /// Calf offset (rad). Default [-0.6, 0.6].
+    pub calf: Range,
+    /// Base linear velocity per axis (m/s). Default [-0.5, 0.5].
+    pub linvel: Range,
+    /// Base angular velocity per axis (rad/s). Default [-0.5, 0.5].
+    pub angvel: Range,
+    /// Base pitch, positive nose down (rad). Default [0, 1.3].
+    pub pitch: Range,
+    /// Base yaw (rad). Default [0, 0] (legged_gym does not turn robots at reset).
+    pub yaw: Range,
+    /// Clearance between the lowest robot part and the terrain at spawn (m). Default 0.02.
+    pub spawn_clearance: f32,
+}
+
+impl Default for InitParams {
+    fn default() -> Self {
+        Self {
+            hip: [-0.2, 0.2],
+            thigh: [-1.0, 1.0],
+            calf: [-0.6, 0.6],
+            linvel: [-0.5, 0.5],
+            angvel: [-0.5, 0.5],
+            pitch: [0.0, 1.3],
+            yaw: [0.0, 0.0],
+            spawn_clearance: 0.02,
+        }
+    }
+}
+
+/// Domain randomisation (Table V), drawn per env at reset.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RandomizationParams {
+    /// Draw the values below (else the robot's nominal values). Default true.
+    pub enabled: bool,
+    /// Robot-terrain friction coefficient. Default [0.2, 1.6].
+    pub friction: Range,
+    /// Payload on the trunk (kg). Default [-1, 1].
+    pub payload: Range,
+    /// Trunk centre-of-mass shift per axis (m). Default [-0.01, 0.01].
+    pub com_offset: Range,
+    /// Viscous joint damping (N m s/rad). Default [0.25, 0.35].
+    pub joint_damping: Range,
+    /// Coulomb joint friction torque (N m). Default [0.005, 0.01].
+    pub joint_friction: Range,
+    /// Rotor inertia on each joint axis (kg m^2). Default [0.015, 0.025].
+    pub armature: Range,
+    /// Factor on kp. Default [0.8, 1.2].
+    pub kp_factor: Range,
+    /// Factor on kd. Default [0.8, 1.2].
+    pub kd_factor: Range,
+    /// Push every this many seconds (0 = never). Default 10.
+    pub push_interval_s: f32,
+    /// The base's xy velocity is shifted by U(-v, v) per axis (m/s). Default 1.
+    pub push_velocity: f32,
+}
+
+impl Default for RandomizationParams {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            friction: [0.2, 1.6],
+            payload: [-1.0, 1.0],
+            com_offset: [-0.01, 0.01],
+            joint_damping: [0.25, 0.35],
+            joint_friction: [0.005, 0.01],
+            armature: [0.015, 0.025],
+            kp_factor: [0.8, 1.2],
+            kd_factor: [0.8, 1.2],
+            push_interval_s: 10.0,
+            push_velocity: 1.0,
+        }
+    }
+}
+
+/// Which legs carry the biped stance.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum BipedStance {
+    /// Front legs carry the body, pitched nose down (the paper's Table II and Eq. 5-9).
+    Front,
+}
+
+/// Reward weights, targets and switches.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RewardParams {
+    /// Weight per term (Table II), before the multiplication by the policy dt. Keys are
+    /// [`RewardTerm::name`]s; a missing key keeps its default.
+    pub weights: RewardWeights,
+    /// Quad base height target h*quad (m). Default 0.30.
+    pub base_height_quad: f32,
+    /// Biped base height target h*bi (m). Default 0.50: in the front-leg stance the trunk origin
+    /// sits about one trunk half-length (0.19 m) above the hips, and the front legs, almost
+    /// straight, hold the hips about 0.33 m up.
+    pub base_height_biped: f32,
+    /// Biped orientation target (roll proxy, pitch) (rad). Default (0, pi/2).
+    pub biped_angle_target: [f32; 2],
+    /// Pitch above which the upright indicator fires (rad). Default 1.4.
+    pub upright_pitch: f32,
+    /// Desired swing foot height above the highest terrain within 2 cm (m). Default 0.08.
+    pub foot_clearance_target: f32,
+    /// Radius of the terrain sampling around each foot (m). Default 0.02.
+    pub foot_clearance_radius: f32,
+    /// Soft joint limits as a share of the URDF range (legged_gym `soft_dof_pos_limit`). Default 0.9.
+    pub soft_joint_limit: f32,
+    /// Contact force above which a foot counts as touching (N). Default 1.
+    pub contact_threshold: f32,
+    /// Clip the sum of all terms but termination at zero (legged_gym `only_positive_rewards`).
+    /// Default true.
+    pub only_positive: bool,
+    /// Mask quad and biped terms with the task indicators. false = the paper's "w/o task
+    /// indicator" ablation (I_1 = I_2 = 1). Default true.
+    pub task_indicators: bool,
+    /// Gate biped tracking and gait terms with the upright indicator. false = "w/o upright
+    /// indicator" (I_up = 1). Default true.
+    pub upright_indicator: bool,
+    /// Legs of the biped stance. Default front.
+    pub biped_stance: BipedStance,
+}
+
+impl Default for RewardParams {
+    fn default() -> Self {
+        Self {
+            weights: RewardWeights::default(),
+            base_height_quad: 0.30,
+            base_height_biped: 0.50,
+            biped_angle_target: [0.0, std::f32::consts::FRAC_PI_2],
+            upright_pitch: 1.4,
+            foot_clearance_target: 0.08,
+            foot_clearance_radius: 0.02,
+            soft_joint_limit: 0.9,
+            contact_threshold: 1.0,
+            only_positive: true,
+            task_indicators: true,
+            upright_indicator: true,
+            biped_stance: BipedStance::Front,
+        }
+    }
+}
+
+/// Reward weights indexed by [`RewardTerm`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct RewardWeights(pub [f32; RewardTerm::COUNT]);
+
+impl Default for RewardWeights {
+    fn default() -> Self {
+        Self(std::array::from_fn(|i| RewardTerm::ALL[i].default_weight()))
+    }
+}
+
+impl Serialize for RewardWeights {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        use serde::ser::SerializeMap;
+        let mut map = s.serialize_map(Some(RewardTerm::COUNT))?;
+        for term in RewardTerm::ALL {
+            map.serialize_entry(term.name(), &self.0[term as usize])?;
+        }
+        map.end()
+    }
+}
+
+impl<'de> Deserialize<'de> for RewardWeights {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let map = std::collections::BTreeMap::<String, f32>::deserialize(d)?;
+        let mut weights = RewardWeights::default();
+        for (name, value) in map {
+            let term = RewardTerm::from_name(&name).ok_or_else(|| {
+                serde::de::Error::custom(format!(
+                    "unknown reward term `{name}`; known terms: {}",
+                    RewardTerm::ALL.map(|t| t.name()).join(", ")
+                ))
+            })?;
+            weights.0[term as usize] = value;
+        }
+        Ok(weights)
+    }
+}
+
+/// Observation noise (uniform, legged_gym style: value += U(-1, 1) * level * scale * n).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct NoiseParams {
+    /// Add noise. Default true.
+    pub enabled: bool,
+    /// Global multiplier. Default 1.
+    pub level: f32,
+}
+
+impl Default for NoiseParams {
+    fn default() -> Self {
+        Self { enabled: true, level: 1.0 }
+    }
+}
+
+fn check_range(field: &str, r: Range, lo: f32, hi: f32) -> Result<(), SimError> {
+    if !(r[0].is_finite() && r[1].is_finite() && r[0] <= r[1] && r[0] >= lo && r[1] <= hi) {
+        return Err(SimError::invalid(field, format!("{r:?}"), format!("need lo <= hi within [{lo}, {hi}]")));
+    }
+    Ok(())
+}
+
+fn check(field: &str, v: f32, lo: f32, hi: f32) -> Result<(), SimError> {
+    if !(v.is_finite() && v >= lo && v <= hi) {
+        return Err(SimError::invalid(field, v, format!("allowed range [{lo}, {hi}]")));
+    }
+    Ok(())
+}
+
+impl TaskConfig {
+    /// The embedded default config (`assets/task.toml`).
+    pub fn embedded_default() -> Self {
+        Self::from_toml(DEFAULT_TASK_TOML).expect("the embedded task config is valid")
+    }
+
+    /// Parse and validate a TOML document; missing fields keep their defaults.
+    pub fn from_toml(text: &str) -> Result<Self, SimError> {
+        let config: Self = toml::from_str(text).map_err(|e| SimError::ConfigSyntax(e.to_string()))?;
+        config.validate()?;
+        Ok(config)
+    }
+
+    /// Apply a TOML override document on top of this config (keys not named keep their value).
+    pub fn with_overrides(&self, text: &str) -> Result<Self, SimError> {
+        let mut base = toml::Value::try_from(self).map_err(|e| SimError::ConfigSyntax(e.to_string()))?;
+        let over: toml::Value = toml::from_str(text).map_err(|e| SimError::ConfigSyntax(e.to_string()))?;
+        merge(&mut base, over);
+        let config: Self = base.try_into().map_err(|e: toml::de::Error| SimError::ConfigSyntax(e.to_string()))?;
+        config.validate()?;
+        Ok(config)
+    }
+
+    /// Check every value against its allowed range.
+    pub fn validate(&self) -> Result<(), SimError> {
+        let p = &self.physics;
+        check("physics.dt", p.dt, 1e-4, 0.02)?;
+        if !(1..=64).contains(&p.solver_iterations) {
+            return Err(SimError::invalid("physics.solver_iterations", p.solver_iterations, "allowed range [1, 64]"));
+        }
+        if !(1..=16).contains(&p.pgs_iterations) {
+            return Err(SimError::invalid("physics.pgs_iterations", p.pgs_iterations, "allowed range [1, 16]"));
+        }
+        check("physics.gravity", p.gravity, 0.0, 100.0)?;
+        let e = &self.env;
+        check("env.episode_length_s", e.episode_length_s, 0.02, 3600.0)?;
+        if !(1..=100).contains(&e.decimation) {
+            return Err(SimError::invalid("env.decimation", e.decimation, "allowed range [1, 100]"));
+        }
+        if !(1..=4096).contains(&e.envs_per_world) {
+            return Err(SimError::invalid("env.envs_per_world", e.envs_per_world, "allowed range [1, 4096]"));
+        }
+        check("env.action_scale", e.action_scale, 0.0, 10.0)?;
+        check("env.clip_actions", e.clip_actions, 0.0, 1e6)?;
+        check("env.clip_observations", e.clip_observations, 0.0, 1e6)?;
+        let c = &self.commands;
+        check("commands.resampling_time_s", c.resampling_time_s, 0.02, 3600.0)?;
+        check("commands.zero_below", c.zero_below, 0.0, 10.0)?;
+        for (mode, r) in [("quad", &c.quad), ("biped", &c.biped)] {
+            check_range(&format!("commands.{mode}.vx"), r.vx, -10.0, 10.0)?;
+            check_range(&format!("commands.{mode}.vy"), r.vy, -10.0, 10.0)?;
+            check_range(&format!("commands.{mode}.wz"), r.wz, -10.0, 10.0)?;
+        }
+        check("modes.resampling_time_s", self.modes.resampling_time_s, 0.02, 3600.0)?;
+        check("modes.biped_probability", self.modes.biped_probability, 0.0, 1.0)?;
+        let g = &self.gait;
+        check("gait.period_s", g.period_s, 0.05, 10.0)?;
+        check("gait.swing_ratio", g.swing_ratio, 0.0, 1.0)?;
+        check("gait.kappa", g.kappa, 0.1, 1000.0)?;
+        check("gait.force_scale", g.force_scale, 1e-3, 1e6)?;
+        check("gait.speed_scale", g.speed_scale, 1e-3, 1e6)?;
+        for (i, o) in g.offsets_quad.iter().chain(&g.offsets_biped).enumerate() {
+            check(&format!("gait.offsets[{i}]"), *o, 0.0, 1.0)?;
+        }
+        let i = &self.init;
+        check_range("init.hip", i.hip, -3.2, 3.2)?;
+        check_range("init.thigh", i.thigh, -3.2, 3.2)?;
+        check_range("init.calf", i.calf, -3.2, 3.2)?;
+        check_range("init.linvel", i.linvel, -10.0, 10.0)?;
+        check_range("init.angvel", i.angvel, -10.0, 10.0)?;
+        check_range("init.pitch", i.pitch, -1.6, 1.6)?;
+        check_range("init.yaw", i.yaw, -3.2, 3.2)?;
+        check("init.spawn_clearance", i.spawn_clearance, 0.0, 2.0)?;
+        let r = &self.randomization;
+        check_range("randomization.friction", r.friction, 0.0, 10.0)?;
+        check_range("randomization.payload", r.payload, -5.0, 20.0)?;
+        check_range("randomization.com_offset", r.com_offset, -0.1, 0.1)?;
+        check_range("randomization.joint_damping", r.joint_damping, 0.0, 10.0)?;
+        check_range("randomization.joint_friction", r.joint_friction, 0.0, 10.0)?;
+        check_range("randomization.armature", r.armature, 0.0, 1.0)?;
+        check_range("randomization.kp_factor", r.kp_factor, 0.0, 10.0)?;
+        check_range("randomization.kd_factor", r.kd_factor, 0.0, 10.0)?;
+        check("randomization.push_interval_s", r.push_interval_s, 0.0, 3600.0)?;
+        check("randomization.push_velocity", r.push_velocity, 0.0, 10.0)?;
+        let w = &self.rewards;
+        for term in RewardTerm::ALL {
+            check(&format!("rewards.weights.{}", term.name()), w.weights.0[term as usize], -1e6, 1e6)?;
+        }
+        check("rewards.base_height_quad", w.base_height_quad, 0.0, 2.0)?;
+        check("rewards.base_height_biped", w.base_height_biped, 0.0, 2.0)?;
+        check("rewards.upright_pitch", w.upright_pitch, 0.0, 1.6)?;
+        check("rewards.foot_clearance_target", w.foot_clearance_target, 0.0, 1.0)?;
+        check("rewards.foot_clearance_radius", w.foot_clearance_radius, 0.0, 0.5)?;
+        check("rewards.soft_joint_limit", w.soft_joint_limit, 0.0, 1.0)?;
+        check("rewards.contact_threshold", w.contact_threshold, 0.0, 1e4)?;
+        check("noise.level", self.noise.level, 0.0, 100.0)?;
+        Ok(())
+    }
+
+    /// Policy step (s): physics dt times decimation.
+    pub fn policy_dt(&self) -> f32 {
+        self.physics.dt * self.env.decimation as f32
+    }
+
+    /// Episode length in policy steps.
+    pub fn max_episode_steps(&self) -> u32 {
+        (self.env.episode_length_s / self.policy_dt()).round().max(1.0) as u32
+    }
+
+    /// Policy steps between two draws of the task mode.
+    pub fn mode_interval_steps(&self) -> u32 {
+        (self.modes.resampling_time_s / self.policy_dt()).round().max(1.0) as u32
+    }
+
+    /// Policy steps between two draws of the commands.
+    pub fn command_interval_steps(&self) -> u32 {
+        (self.commands.resampling_time_s / self.policy_dt()).round().max(1.0) as u32
+    }
+
+    /// Policy steps between pushes (None: pushes off).
+    pub fn push_interval_steps(&self) -> Option<u32> {
+        let s = self.randomization.push_interval_s;
+        (s > 0.0 && self.randomization.enabled).then(|| (s / self.policy_dt()).round().max(1.0) as u32)
+    }
+
+    /// Effective reward weight of `term`: Table II weight times the policy dt.
+    pub fn scaled_weight(&self, term: RewardTerm) -> f32 {
+        self.rewards.weights.0[term as usize] * self.policy_dt()
+    }
+}
+
+fn merge(base: &mut toml::Value, over: toml::Value) {
+    match (base, over) {
+        (toml::Value::Table(b), toml::Value::Table(o)) => {
+            for (k, v) in o {
+                match b.get_mut(&k) {
+                    Some(slot) => merge(slot, v),
+                    None => {
+                        b.insert(k, v);
+                    }
+                }
+            }
+        }
+        (slot, v) => *slot = v,
+    }
+}
+
+/// The default task config, embedded at build time.
+pub const DEFAULT_TASK_TOML: &str = include_str!("../../../../assets/task.toml");

@@ -1,0 +1,103 @@
+//! Domain randomisation (Table V) as a pure function of the ranges and an RNG.
+
+use rand::{Rng, RngExt};
+use rapier3d::math::Vec3;
+
+use super::config::{Range, RandomizationParams};
+use crate::physics::{ActuatorParams, RobotPhysicalParams};
+use crate::robot::RobotConfig;
+
+/// The randomised values of one env, drawn at reset.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Randomization {
+    /// Friction coefficient, U(friction).
+    pub friction: f32,
+    /// Trunk payload (kg), U(payload).
+    pub payload: f32,
+    /// Trunk CoM shift (m), U(com_offset) per axis.
+    pub com_offset: Vec3,
+    /// Joint damping (N m s/rad), U(joint_damping).
+    pub joint_damping: f32,
+    /// Joint friction (N m), U(joint_friction).
+    pub joint_friction: f32,
+    /// Armature (kg m^2), U(armature).
+    pub armature: f32,
+    /// kp factor, U(kp_factor).
+    pub kp_factor: f32,
+    /// kd factor, U(kd_factor).
+    pub kd_factor: f32,
+}
+
+/// Uniform draw from a closed range.
+pub fn uniform(rng: &mut impl Rng, r: Range) -> f32 {
+    if r[1] > r[0] { rng.random_range(r[0]..=r[1]) } else { r[0] }
+}
+
+impl Randomization {
+    /// The robot's nominal values (randomisation off).
+    pub fn nominal(robot: &RobotConfig) -> Self {
+        Self {
+            friction: 1.0,
+            payload: 0.0,
+            com_offset: Vec3::ZERO,
+            joint_damping: robot.joint_damping,
+            joint_friction: robot.joint_friction,
+            armature: robot.armature,
+            kp_factor: 1.0,
+            kd_factor: 1.0,
+        }
+    }
+
+    /// Draw one env's values (or the nominal ones when `params.enabled` is false).
+    pub fn sample(params: &RandomizationParams, robot: &RobotConfig, rng: &mut impl Rng) -> Self {
+        if !params.enabled {
+            return Self::nominal(robot);
+        }
+        Self {
+            friction: uniform(rng, params.friction),
+            payload: uniform(rng, params.payload),
+            com_offset: Vec3::new(
+                uniform(rng, params.com_offset),
+                uniform(rng, params.com_offset),
+                uniform(rng, params.com_offset),
+            ),
+            joint_damping: uniform(rng, params.joint_damping),
+            joint_friction: uniform(rng, params.joint_friction),
+            armature: uniform(rng, params.armature),
+            kp_factor: uniform(rng, params.kp_factor),
+            kd_factor: uniform(rng, params.kd_factor),
+        }
+    }
+
+    /// The physical parameters these values give the robot.
+    pub fn physical_params(&self, robot: &RobotConfig) -> RobotPhysicalParams {
+        RobotPhysicalParams {
+            actuator: ActuatorParams {
+                kp: robot.kp * self.kp_factor,
+                kd: robot.kd * self.kd_factor,
+                damping: self.joint_damping,
+                friction: self.joint_friction,
+            },
+            armature: self.armature,
+            payload: self.payload,
+            com_offset: self.com_offset,
+            friction: self.friction,
+        }
+    }
+
+    /// The privileged vector s_t, in [`super::observation::PRIVILEGED`] order.
+    pub fn privileged(&self) -> [f32; super::observation::PRIVILEGED_DIM] {
+        [
+            self.friction,
+            self.payload,
+            self.com_offset.x,
+            self.com_offset.y,
+            self.com_offset.z,
+            self.joint_damping,
+            self.joint_friction,
+            self.armature,
+            self.kp_factor,
+            self.kd_factor,
+        ]
+    }
+}
