@@ -43,6 +43,9 @@ pub struct BenchArgs {
     /// Seed.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// A TOML fragment overriding the task config, e.g. 'physics.solver_iterations = 8'.
+    #[arg(long = "set")]
+    pub overrides: Vec<String>,
     /// Print JSON only.
     #[arg(long)]
     pub json: bool,
@@ -90,7 +93,10 @@ fn terrain_from_name(name: &str) -> Result<Terrain> {
 pub fn run(args: &BenchArgs) -> Result<BenchReport> {
     let threads = if args.threads == 0 { std::thread::available_parallelism()?.get() } else { args.threads };
     let model = Arc::new(RobotModel::go2());
-    let config = TaskConfig::embedded_default();
+    let mut config = TaskConfig::embedded_default();
+    for o in &args.overrides {
+        config = config.with_overrides(o)?;
+    }
     let decimation = config.env.decimation;
     let terrain = Arc::new(terrain_from_name(&args.terrain)?);
     let options = VecEnvOptions {

@@ -31,7 +31,8 @@ pub struct RobotState {
     pub penalised_contacts: u32,
     /// Bit set of the penalised bodies in contact (scratch for counting).
     pub penalised_bodies: u32,
-    /// Worst joint anchor separation of this robot (m).
+    /// Worst joint anchor separation of this robot left by the solver during the last policy
+    /// step, measured before the joint projection (m).
     pub max_joint_gap: f32,
 }
 

@@ -410,6 +410,7 @@ impl TaskConfig {
             return Err(SimError::invalid("physics.pgs_iterations", p.pgs_iterations, "allowed range [1, 16]"));
         }
         check("physics.gravity", p.gravity, 0.0, 100.0)?;
+        check("physics.min_link_inertia", p.min_link_inertia, 0.0, 1.0)?;
         let e = &self.env;
         check("env.episode_length_s", e.episode_length_s, 0.02, 3600.0)?;
         if !(1..=100).contains(&e.decimation) {
