@@ -29,6 +29,8 @@ pub struct RobotState {
     pub trunk_force: f32,
     /// Number of penalised bodies (thighs, calves) touching the terrain.
     pub penalised_contacts: u32,
+    /// Number of contacts of other leg parts (hips) with the terrain.
+    pub other_contacts: u32,
     /// Bit set of the penalised bodies in contact (scratch for counting).
     pub penalised_bodies: u32,
     /// Worst joint anchor separation of this robot left by the solver during the last policy
@@ -43,6 +45,7 @@ impl RobotState {
         self.trunk_force = 0.0;
         self.penalised_contacts = 0;
         self.penalised_bodies = 0;
+        self.other_contacts = 0;
     }
 
     /// Whether every measured quantity is finite.
@@ -71,6 +74,7 @@ impl Default for RobotState {
             trunk_force: 0.0,
             penalised_contacts: 0,
             penalised_bodies: 0,
+            other_contacts: 0,
             max_joint_gap: 0.0,
         }
     }

@@ -25,6 +25,10 @@ pub struct PhysicsParams {
     pub pgs_iterations: usize,
     /// Gravity along -z (m/s^2). Default 9.81.
     pub gravity: f32,
+    /// Extra solver iterations for a robot whose hips, thighs or calves touch the terrain (a
+    /// fallen or sprawled robot): contacts on light links need them to keep joint anchors within
+    /// 5 mm, and such poses are rare in training, so the cost stays small. Default 4.
+    pub extra_iterations_on_leg_contact: usize,
     /// Floor on each diagonal entry of a leg link's inertia tensor (kg m^2). Default 0.002.
     /// The Go2's hips and calves are very light about the axes they do not turn on (down to
     /// 4e-5), and an impulse solver shares the motors' reaction torques badly through such
@@ -36,7 +40,7 @@ pub struct PhysicsParams {
 
 impl Default for PhysicsParams {
     fn default() -> Self {
-        Self { dt: 0.005, solver_iterations: 4, pgs_iterations: 1, gravity: 9.81, min_link_inertia: 0.002 }
+        Self { dt: 0.005, solver_iterations: 4, pgs_iterations: 1, gravity: 9.81, extra_iterations_on_leg_contact: 4, min_link_inertia: 0.002 }
     }
 }
 
@@ -107,7 +111,10 @@ pub struct RobotWorld {
     ccd: CCDSolver,
     gravity: Vec3,
     min_link_inertia: f32,
+    extra_on_leg_contact: usize,
     robots: Vec<RobotHandles>,
+    /// Extra solver iterations currently given to each robot.
+    extra_iterations: Vec<usize>,
     /// Scratch: world poses and velocities of one robot's bodies.
     scratch_rot: Vec<Rotation>,
     scratch_angvel: Vec<Vec3>,
@@ -135,6 +142,8 @@ impl RobotWorld {
             ccd: CCDSolver::new(),
             gravity: Vec3::new(0.0, 0.0, -params.gravity),
             min_link_inertia: params.min_link_inertia,
+            extra_on_leg_contact: params.extra_iterations_on_leg_contact,
+            extra_iterations: vec![0; count],
             robots: Vec::with_capacity(count),
             scratch_rot: vec![Rotation::IDENTITY; model.bodies.len()],
             scratch_angvel: vec![Vec3::ZERO; model.bodies.len()],
@@ -319,7 +328,7 @@ impl RobotWorld {
 
     /// Read every robot's state into `out` (one entry per slot), including the contact forces of
     /// the last physics step.
-    pub fn read_states(&self, model: &RobotModel, out: &mut [RobotState]) {
+    pub fn read_states(&mut self, model: &RobotModel, out: &mut [RobotState]) {
         for (slot, s) in out.iter_mut().enumerate().take(self.robots.len()) {
             self.read_kinematics(model, slot, s);
             s.clear_contacts();
@@ -350,7 +359,16 @@ impl RobotWorld {
                     }
                 }
                 code @ 8..=11 => s.foot_force[(code - 8) as usize] += force,
-                _ => {}
+                _ => s.other_contacts += 1,
+            }
+        }
+        for slot in 0..self.robots.len() {
+            let s = &out[slot];
+            let extra = if s.penalised_contacts + s.other_contacts > 0 { self.extra_on_leg_contact } else { 0 };
+            if self.extra_iterations[slot] != extra {
+                self.extra_iterations[slot] = extra;
+                // A robot is its own solver island, which takes the maximum over its bodies.
+                self.bodies[self.robots[slot].bodies[0]].set_additional_solver_iterations(extra);
             }
         }
     }

@@ -410,6 +410,9 @@ impl TaskConfig {
             return Err(SimError::invalid("physics.pgs_iterations", p.pgs_iterations, "allowed range [1, 16]"));
         }
         check("physics.gravity", p.gravity, 0.0, 100.0)?;
+        if p.extra_iterations_on_leg_contact > 64 {
+            return Err(SimError::invalid("physics.extra_iterations_on_leg_contact", p.extra_iterations_on_leg_contact, "allowed range [0, 64]"));
+        }
         check("physics.min_link_inertia", p.min_link_inertia, 0.0, 1.0)?;
         let e = &self.env;
         check("env.episode_length_s", e.episode_length_s, 0.02, 3600.0)?;
