@@ -231,7 +231,11 @@ impl EnvGroup {
             for j in 0..NUM_JOINTS {
                 let a = actions[slot * NUM_JOINTS + j].clamp(-clip, clip);
                 env.actions[0][j] = a;
-                self.targets[slot * NUM_JOINTS + j] = sh.ctx.default_q[j] + cfg.env.action_scale * a;
+                // Targets beyond a joint's range only press it into its stop: clip them there,
+                // as the robot's own joint controller does.
+                let joint = &sh.model.joints[j];
+                self.targets[slot * NUM_JOINTS + j] =
+                    (sh.ctx.default_q[j] + cfg.env.action_scale * a).clamp(joint.sim_lower, joint.sim_upper);
             }
         }
         for _ in 0..cfg.env.decimation {

@@ -33,6 +33,8 @@ pub struct RobotState {
     pub other_contacts: u32,
     /// Bit set of the penalised bodies in contact (scratch for counting).
     pub penalised_bodies: u32,
+    /// The physics engine found this robot's state non-finite and froze it.
+    pub faulted: bool,
     /// Worst joint anchor separation of this robot left by the solver during the last policy
     /// step, measured before the joint projection (m).
     pub max_joint_gap: f32,
@@ -50,7 +52,8 @@ impl RobotState {
 
     /// Whether every measured quantity is finite.
     pub fn is_finite(&self) -> bool {
-        self.base_pos.is_finite()
+        !self.faulted
+            && self.base_pos.is_finite()
             && self.base_rot.is_finite()
             && self.base_linvel.is_finite()
             && self.base_angvel.is_finite()
@@ -76,6 +79,7 @@ impl Default for RobotState {
             penalised_bodies: 0,
             other_contacts: 0,
             max_joint_gap: 0.0,
+            faulted: false,
         }
     }
 }

@@ -115,6 +115,8 @@ pub struct RobotWorld {
     robots: Vec<RobotHandles>,
     /// Extra solver iterations currently given to each robot.
     extra_iterations: Vec<usize>,
+    /// Robots with a body rapier quarantined (non-finite state) since their last reset.
+    faulted: Vec<bool>,
     /// Scratch: world poses and velocities of one robot's bodies.
     scratch_rot: Vec<Rotation>,
     scratch_angvel: Vec<Vec3>,
@@ -144,6 +146,7 @@ impl RobotWorld {
             min_link_inertia: params.min_link_inertia,
             extra_on_leg_contact: params.extra_iterations_on_leg_contact,
             extra_iterations: vec![0; count],
+            faulted: vec![false; count],
             robots: Vec::with_capacity(count),
             scratch_rot: vec![Rotation::IDENTITY; model.bodies.len()],
             scratch_angvel: vec![Vec3::ZERO; model.bodies.len()],
@@ -179,6 +182,7 @@ impl RobotWorld {
         for (b, body) in model.bodies.iter().enumerate() {
             let rb = RigidBodyBuilder::dynamic()
                 .pose(poses[b])
+                .user_data(slot as u128)
                 .can_sleep(false)
                 .additional_mass_properties(body_mass_properties(model, b, params, self.min_link_inertia))
                 .build();
@@ -240,8 +244,10 @@ impl RobotWorld {
         q: &[f32; NUM_JOINTS],
     ) {
         let local = model.forward_kinematics(q);
+        self.faulted[slot] = false;
         for (b, &h) in self.robots[slot].bodies.iter().enumerate() {
             let Some(rb) = self.bodies.get_mut(h) else { continue };
+            rb.set_enabled(true);
             let pose = base * local[b];
             rb.set_position(pose, true);
             let com = pose.transform_point(rb.mass_properties().local_mprops.local_com);
@@ -276,7 +282,7 @@ impl RobotWorld {
                 let i = slot * NUM_JOINTS + j;
                 let motor = pd_torque(targets[i], q, qd, act.kp, act.kd, joint.effort);
                 torques[i] = motor;
-                let tau = motor + passive_torque(qd, act.damping, act.friction);
+                let tau = motor + passive_torque(qd, act.damping, act.friction) + limit_torque(q, qd, joint.sim_lower, joint.sim_upper);
                 let axis = self.scratch_rot[c] * joint.axis * tau;
                 self.bodies[robot.bodies[c]].add_torque(axis, false);
                 self.bodies[robot.bodies[p]].add_torque(-axis, false);
@@ -297,6 +303,14 @@ impl RobotWorld {
             &(),
             &(),
         );
+        // Rapier disables bodies whose state turned non-finite; the env layer resets the robot.
+        for &h in self.pipeline.quarantine().bodies() {
+            if let Some(b) = self.bodies.get(h) {
+                if let Some(f) = self.faulted.get_mut(b.user_data as usize) {
+                    *f = true;
+                }
+            }
+        }
     }
 
     /// Read the pose, velocities, joints and feet of robot `slot` into `s` (contacts untouched).
@@ -332,6 +346,7 @@ impl RobotWorld {
         for (slot, s) in out.iter_mut().enumerate().take(self.robots.len()) {
             self.read_kinematics(model, slot, s);
             s.clear_contacts();
+            s.faulted = self.faulted[slot];
         }
         let inv_dt = 1.0 / self.integration.dt;
         for pair in self.narrow_phase.contact_pairs() {
@@ -364,7 +379,14 @@ impl RobotWorld {
         }
         for slot in 0..self.robots.len() {
             let s = &out[slot];
-            let extra = if s.penalised_contacts + s.other_contacts > 0 { self.extra_on_leg_contact } else { 0 };
+            // A joint at its stop, or fast enough to reach it within the next policy step.
+            let reach = LIMIT_MARGIN;
+            let at_limit = model.joints.iter().enumerate().any(|(j, joint)| {
+                let ahead = s.q[j] + s.qd[j] * LIMIT_LOOKAHEAD_S;
+                s.q[j].min(ahead) < joint.sim_lower + reach || s.q[j].max(ahead) > joint.sim_upper - reach
+            });
+            let hard = s.penalised_contacts + s.other_contacts > 0 || at_limit;
+            let extra = if hard { self.extra_on_leg_contact } else { 0 };
             if self.extra_iterations[slot] != extra {
                 self.extra_iterations[slot] = extra;
                 // A robot is its own solver island, which takes the maximum over its bodies.
@@ -416,6 +438,30 @@ impl RobotWorld {
         self.bodies[h].set_linvel(Vec3::splat(f32::NAN), true);
     }
 }
+
+/// Stiffness (N m/rad) and damping (N m s/rad) of the joint stops. Rapier's limit constraint
+/// only engages once a joint is past its limit and, at 4 iterations, let fast joints overshoot by
+/// up to 0.16 rad; this explicit spring backs it up (stable: k dt^2 / I < 0.2 with armature).
+const LIMIT_STIFFNESS: f32 = 500.0;
+const LIMIT_DAMPING: f32 = 5.0;
+
+/// Torque of the joint stops: a stiff one-sided spring-damper beyond either limit.
+#[inline]
+fn limit_torque(q: f32, qd: f32, lower: f32, upper: f32) -> f32 {
+    if q < lower {
+        LIMIT_STIFFNESS * (lower - q) - LIMIT_DAMPING * qd.min(0.0)
+    } else if q > upper {
+        LIMIT_STIFFNESS * (upper - q) - LIMIT_DAMPING * qd.max(0.0)
+    } else {
+        0.0
+    }
+}
+
+/// A joint closer than this to a limit (rad) counts as at its limit: limit constraints under
+/// load need the extra iterations too.
+const LIMIT_MARGIN: f32 = 0.05;
+/// How far ahead (s) a joint's speed is extrapolated to decide it may hit a stop.
+const LIMIT_LOOKAHEAD_S: f32 = 0.02;
 
 /// Contact force (N) above which a contact counts (legged_gym uses 1 N for feet and trunk, 0.1 N
 /// for penalised bodies).

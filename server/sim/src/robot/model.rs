@@ -7,10 +7,12 @@ use super::config::{NUM_FEET, NUM_JOINTS, RobotConfig};
 use super::description::{Geometry, Inertial, RobotDescription};
 use crate::error::SimError;
 
-/// Effective range of a simulated joint. Rapier measures revolute angles in [-pi, pi], so a URDF
-/// range reaching past that (the Go2 thigh goes to 260 deg) is cut just inside it; the cut part of
-/// the range puts the thigh inside the trunk and plays no role in locomotion.
-pub const SIM_ANGLE_BOUND: f32 = std::f32::consts::PI - 0.05;
+/// Effective range of a simulated joint. Revolute angles are measured in [-pi, pi], so a URDF
+/// range reaching past that (the Go2 thigh goes to 260 deg) is cut 0.5 rad inside it: a joint
+/// that overshoots its stop must not wrap around to the far side. The cut part of the range
+/// (thigh beyond 151 deg, calf beyond -151 deg) folds the leg into the trunk and plays no role
+/// in locomotion.
+pub const SIM_ANGLE_BOUND: f32 = std::f32::consts::PI - 0.5;
 
 /// What a collider's contact with the terrain means to the task.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]

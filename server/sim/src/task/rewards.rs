@@ -293,3 +293,7 @@ pub fn weigh_terms(
     }
     sum + terms[RewardTerm::Termination as usize]
 }
+
+#[cfg(test)]
+#[path = "rewards_test.rs"]
+mod test;

@@ -1,0 +1,192 @@
+//! Each reward term against a value computed by hand for a constructed state.
+
+use rapier3d::math::{Vec2, Vec3};
+
+use super::*;
+use crate::task::gait::{VonMisesCdf, gait_coefficients};
+use crate::task::reward_terms::TermGroup;
+
+fn close(a: f32, b: f32) {
+    assert!((a - b).abs() <= 1e-5 * (1.0 + b.abs()), "{a} != {b}");
+}
+
+fn zeros() -> [f32; NUM_JOINTS] {
+    [0.0; NUM_JOINTS]
+}
+
+#[test]
+fn common_costs() {
+    close(cost_termination(true), 1.0);
+    close(cost_termination(false), 0.0);
+    close(cost_collision(3), 3.0);
+    // 0.3^2 + 0.4^2 = 0.25; z is ignored.
+    close(cost_ang_vel_xy(Vec3::new(0.3, 0.4, 9.0)), 0.25);
+    let mut qd = zeros();
+    qd[0] = 2.0;
+    qd[5] = -1.0;
+    close(cost_dof_vel(&qd), 5.0);
+    // (2 - 1) / 0.02 = 50 -> 2500; (-1 - 0) / 0.02 = -50 -> 2500.
+    let mut prev = zeros();
+    prev[0] = 1.0;
+    close(cost_dof_acc(&qd, &prev, 0.02), 5000.0);
+    let mut a = zeros();
+    let mut a1 = zeros();
+    let mut a2 = zeros();
+    a[0] = 1.0;
+    a1[0] = 0.5;
+    a2[0] = 0.5;
+    a[1] = -1.0;
+    close(cost_action_rate(&a, &a1), 0.25 + 1.0);
+    // a - 2 a1 + a2 = 1 - 1 + 0.5 = 0.5; second joint -1.
+    close(cost_action_smoothness(&a, &a1, &a2), 0.25 + 1.0);
+    let mut tau = zeros();
+    tau[2] = 3.0;
+    tau[11] = -4.0;
+    close(cost_torques(&tau), 25.0);
+}
+
+#[test]
+fn hip_position_and_limits() {
+    let q0 = [0.1, 0.8, -1.5, -0.1, 0.8, -1.5, 0.1, 1.0, -1.5, -0.1, 1.0, -1.5];
+    let mut q = q0;
+    q[0] = 0.3; // +0.2
+    q[9] = -0.4; // -0.3
+    q[1] = 2.0; // not a hip: ignored
+    close(cost_hip_pos(&q, &q0, &[0, 3, 6, 9]), 0.04 + 0.09);
+    let lo = [-1.0; NUM_JOINTS];
+    let hi = [1.0; NUM_JOINTS];
+    let mut q = zeros();
+    q[0] = 1.5;
+    q[4] = -1.01;
+    close(cost_dof_pos_limits(&q, &lo, &hi), 2.0);
+}
+
+#[test]
+fn tracking_and_posture_rewards() {
+    // |(1, 0) - (0.5, 0.5)|^2 = 0.5 -> exp(-2).
+    close(reward_tracking_lin_vel([1.0, 0.0], Vec2::new(0.5, 0.5)), (-2.0f32).exp());
+    close(reward_tracking_ang_vel(0.5, 0.0), (-1.0f32).exp());
+    // (0.3 - 0.2)^2 = 0.01 -> exp(-0.02).
+    close(reward_base_height(0.3, 0.2), (-0.02f32).exp());
+    // Tilted normal (0.3, 0.4, .) -> exp(-10 * 0.25).
+    close(reward_quad_base_angle(Vec3::new(0.3, 0.4, 0.866)), (-2.5f32).exp());
+    close(cost_lin_vel_z(-0.5), 0.25);
+    // Upright biped at target: 1; off by 0.5 rad in pitch: exp(-0.5).
+    close(reward_biped_base_angle([0.0, 1.5707964], 0.0, 1.5707964), 1.0);
+    close(reward_biped_base_angle([0.0, 1.5707964], 0.0, 1.0707964), (-0.5f32).exp());
+}
+
+#[test]
+fn gait_and_clearance() {
+    let coeffs = [
+        GaitCoefficients { force: 1.0, speed: 0.0 },
+        GaitCoefficients { force: 0.0, speed: 1.0 },
+        GaitCoefficients { force: 0.5, speed: 0.5 },
+        GaitCoefficients { force: 0.0, speed: 1.0 },
+    ];
+    let force = [50.0, 100.0, 20.0, 0.0];
+    let speed = [2.0, 0.5, 1.0, 3.0];
+    // FL: 1 * 50/100 = 0.5; FR: 0.5/1 = 0.5; RL: 0.5*0.2 + 0.5*1 = 0.6; RR: 3.
+    close(gait_violation(&coeffs, &force, &speed, &[0, 1, 2, 3], 100.0, 1.0), 4.6);
+    close(gait_violation(&coeffs, &force, &speed, &[0, 1], 100.0, 1.0), 1.0);
+    close(reward_periodic_gait(1.0), (-2.0f32).exp());
+    // A perfect trot instant: swing feet in the air, stance feet still.
+    let cdf = VonMisesCdf::new(20.0);
+    let c: [GaitCoefficients; 4] = std::array::from_fn(|f| gait_coefficients(&cdf, 0.2 + [0.0, 0.5, 0.5, 0.0][f], 0.4));
+    let e = gait_violation(&c, &[0.0, 70.0, 70.0, 0.0], &[1.5, 0.0, 0.0, 1.5], &[0, 1, 2, 3], 100.0, 1.0);
+    assert!(e < 1e-3, "{e}");
+    // Heights 0.08 (on target) and 0.0 moving at 2 m/s: (0.08)^2 * 2 = 0.0128.
+    let h = [0.08, 0.0, 0.5, 0.5];
+    let v = [1.0, 2.0, 0.0, 0.0];
+    close(foot_clearance_error(&h, &v, 0.08, &[0, 1, 2, 3]), 0.0128);
+    close(reward_foot_clearance(0.0128), (-1.28f32).exp());
+}
+
+#[test]
+fn biped_terms() {
+    let mut q = zeros();
+    // RL (6..9) and RR (9..12): hips mirror, so 0.1 / -0.1 is symmetric.
+    q[6] = 0.1;
+    q[9] = -0.1;
+    q[7] = 1.0;
+    q[10] = 1.0;
+    q[8] = -1.5;
+    q[11] = -1.5;
+    close(cost_biped_rear_legs(&q, &[6, 7, 8], &[9, 10, 11]), 0.0);
+    q[10] = 1.5;
+    q[9] = 0.1;
+    close(cost_biped_rear_legs(&q, &[6, 7, 8], &[9, 10, 11]), 0.04 + 0.25);
+    close(reward_upright_contacts(&[true, false, false, false], &[0, 1], &[2, 3]), 1.0);
+    close(reward_upright_contacts(&[true, true, true, false], &[0, 1], &[2, 3]), 0.0);
+    close(reward_upright_contacts(&[false, false, false, false], &[0, 1], &[2, 3]), 0.0);
+}
+
+#[test]
+fn masks_indicators_and_ablations() {
+    let cfg = TaskConfig::default();
+    let raw = [1.0; RewardTerm::COUNT];
+    let mut terms = [0.0; RewardTerm::COUNT];
+    // Quad mode: every biped term is exactly 0, every quad term is weight * dt.
+    let ind = indicators(false, 0.0, &cfg);
+    weigh_terms(&raw, &ind, &cfg, &mut terms);
+    for t in RewardTerm::ALL {
+        let expected = match t.group() {
+            TermGroup::Common | TermGroup::Quad => t.default_weight() * 0.02,
+            TermGroup::Biped | TermGroup::BipedUpright => 0.0,
+        };
+        close(terms[t as usize], expected);
+    }
+    // Biped mode below the upright pitch: quad terms and gated biped terms are 0.
+    let ind = indicators(true, 1.3, &cfg);
+    weigh_terms(&raw, &ind, &cfg, &mut terms);
+    for t in RewardTerm::ALL {
+        let expected = match t.group() {
+            TermGroup::Common | TermGroup::Biped => t.default_weight() * 0.02,
+            TermGroup::Quad | TermGroup::BipedUpright => 0.0,
+        };
+        close(terms[t as usize], expected);
+    }
+    // Above 1.4 rad the gated terms switch on.
+    let ind = indicators(true, 1.45, &cfg);
+    weigh_terms(&raw, &ind, &cfg, &mut terms);
+    close(terms[RewardTerm::BipedTrackingLinVel as usize], 2.0 * 0.02);
+    close(terms[RewardTerm::QuadTrackingLinVel as usize], 0.0);
+
+    // "No upright indicator": gated biped terms on at any pitch, nothing else changes.
+    let mut no_up = cfg.clone();
+    no_up.rewards.upright_indicator = false;
+    let mut with = [0.0; RewardTerm::COUNT];
+    let mut without = [0.0; RewardTerm::COUNT];
+    weigh_terms(&raw, &indicators(true, 0.5, &cfg), &cfg, &mut with);
+    weigh_terms(&raw, &indicators(true, 0.5, &no_up), &no_up, &mut without);
+    for t in RewardTerm::ALL {
+        let changed = with[t as usize] != without[t as usize];
+        assert_eq!(changed, t.group() == TermGroup::BipedUpright, "{}", t.name());
+    }
+    // "No task indicator": in quad mode the biped terms turn on (the gated ones still need
+    // the pitch), the quad and common terms stay.
+    let mut no_task = cfg.clone();
+    no_task.rewards.task_indicators = false;
+    weigh_terms(&raw, &indicators(false, 1.5, &cfg), &cfg, &mut with);
+    weigh_terms(&raw, &indicators(false, 1.5, &no_task), &no_task, &mut without);
+    for t in RewardTerm::ALL {
+        let changed = with[t as usize] != without[t as usize];
+        let biped = matches!(t.group(), TermGroup::Biped | TermGroup::BipedUpright);
+        assert_eq!(changed, biped, "{}", t.name());
+    }
+}
+
+#[test]
+fn total_is_clipped_before_termination() {
+    let cfg = TaskConfig::default();
+    let mut raw = [0.0; RewardTerm::COUNT];
+    raw[RewardTerm::Collision as usize] = 2.0; // -1 * 0.02 * 2 = -0.04
+    raw[RewardTerm::Termination as usize] = 1.0; // -0.02 * 0.02 = -0.0004
+    let mut terms = [0.0; RewardTerm::COUNT];
+    let total = weigh_terms(&raw, &indicators(false, 0.0, &cfg), &cfg, &mut terms);
+    close(total, -0.0004);
+    let mut signed = cfg.clone();
+    signed.rewards.only_positive = false;
+    let total = weigh_terms(&raw, &indicators(false, 0.0, &signed), &signed, &mut terms);
+    close(total, -0.0404);
+}

@@ -1,0 +1,45 @@
+//! Shared helpers for the integration tests.
+#![allow(dead_code)]
+
+use std::sync::Arc;
+
+use unigait_sim::prelude::*;
+
+/// A config with the robot starting in the default pose at rest, no randomisation, no noise.
+pub fn calm_config(extra: &str) -> TaskConfig {
+    let calm = "
+[init]
+hip = [0.0, 0.0]
+thigh = [0.0, 0.0]
+calf = [0.0, 0.0]
+pitch = [0.0, 0.0]
+linvel = [0.0, 0.0]
+angvel = [0.0, 0.0]
+[randomization]
+enabled = false
+[noise]
+enabled = false
+[env]
+random_initial_episode_step = false
+";
+    TaskConfig::embedded_default().with_overrides(calm).and_then(|c| c.with_overrides(extra)).expect("valid test config")
+}
+
+/// A batch of `n` envs on flat ground.
+pub fn batch(config: TaskConfig, n: usize, seed: u64, threads: usize) -> VecEnv {
+    let options = VecEnvOptions { num_envs: n, seed, threads, physics_only: false, autoreset: true };
+    VecEnv::new(Arc::new(RobotModel::go2()), config, Arc::new(Terrain::Flat), options).expect("batch builds")
+}
+
+/// Deterministic pseudo-random actions in [-1, 1].
+pub fn random_actions(n: usize, state: &mut u64) -> Vec<f32> {
+    (0..n * NUM_JOINTS)
+        .map(|_| {
+            *state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((*state >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
+        })
+        .collect()
+}
+
+/// Go2 mass from our URDF (kg).
+pub const GO2_MASS: f32 = 15.019;

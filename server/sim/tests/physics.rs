@@ -1,0 +1,141 @@
+//! The robot in rapier against physical expectations.
+
+mod common;
+
+use common::*;
+use unigait_sim::prelude::*;
+use unigait_sim::task::euler_pitch;
+
+/// Standing at the default pose (action 0) for 10 s: the base settles at 0.269 m (the rigid
+/// default pose puts it at 0.32 m; kp 20 lets the legs sag) and then stays put.
+#[test]
+fn standing_robot_settles_and_stays_still() {
+    let mut env = batch(calm_config(""), 2, 0, 1);
+    let zeros = vec![0.0; 2 * NUM_JOINTS];
+    let mut late = Vec::new();
+    for step in 0..500 {
+        let out = env.step(&zeros).expect("step");
+        assert_eq!(out.terminated[0], 0, "fell at step {step}");
+        if step >= 250 {
+            late.push(*env.robot_state(0));
+        }
+    }
+    let last = late.last().expect("states");
+    assert!((0.255..=0.285).contains(&last.base_pos.z), "base height {}", last.base_pos.z);
+    assert!(euler_pitch(last.base_rot).abs() < 0.02, "pitch {}", euler_pitch(last.base_rot));
+    // No drift or jitter over the last 5 s.
+    for s in &late {
+        assert!((s.base_pos - last.base_pos).length() < 1e-3, "drift {:?} vs {:?}", s.base_pos, last.base_pos);
+        assert!(s.base_linvel.length() < 5e-3, "jitter {}", s.base_linvel.length());
+    }
+    // The feet carry the weight.
+    let weight = GO2_MASS * 9.81;
+    let carried: f32 = last.foot_force.iter().sum();
+    assert!((carried - weight).abs() < 0.03 * weight, "feet carry {carried} N of {weight} N");
+    assert!(last.max_joint_gap < 1e-3, "joint gap {}", last.max_joint_gap);
+}
+
+/// Dropped with its feet 0.25 m above ground, the robot falls freely, lands on its feet and
+/// settles in the standing band within 5 s.
+#[test]
+fn dropped_robot_lands_and_settles() {
+    let mut env = batch(calm_config("init.spawn_clearance = 0.25"), 1, 0, 1);
+    let z0 = env.robot_state(0).base_pos.z;
+    assert!(z0 > 0.55, "spawned at {z0}");
+    let zeros = vec![0.0; NUM_JOINTS];
+    // 0.1 s of free fall: z drops by g t^2 / 2 = 0.049 m (joints do not change it).
+    for _ in 0..5 {
+        env.step(&zeros).expect("step");
+    }
+    let fallen = z0 - env.robot_state(0).base_pos.z;
+    assert!((fallen - 0.049).abs() < 0.004, "fell {fallen} m in 0.1 s");
+    let mut landed = false;
+    for _ in 0..250 {
+        let out = env.step(&zeros).expect("step");
+        assert_eq!(out.terminated[0], 0, "the trunk hit the ground");
+        landed |= env.robot_state(0).foot_force.iter().filter(|f| **f > 1.0).count() >= 3;
+    }
+    assert!(landed, "never stood on its feet");
+    let s = env.robot_state(0);
+    assert!((0.255..=0.285).contains(&s.base_pos.z), "settled at {}", s.base_pos.z);
+    assert!(s.base_linvel.length() < 0.01);
+}
+
+/// Extreme targets (actions at the clip limit, changing sign at random every step) never drive
+/// torques past the effort limits. Targets are clipped to the joint range, so the motors never
+/// push a joint into its stop; legs whipped at up to 17 rad/s still overshoot a stop by at most
+/// 0.11 rad (measured) before it throws them back, so the bound here is 0.12 rad.
+#[test]
+fn extreme_targets_respect_joint_and_torque_limits() {
+    let n = 16;
+    let mut env = batch(calm_config(""), n, 3, 1);
+    let model = RobotModel::go2();
+    let mut state = 11;
+    for _ in 0..250 {
+        let actions: Vec<f32> = random_actions(n, &mut state).iter().map(|a| a.signum() * 100.0).collect();
+        env.step(&actions).expect("step");
+        let out = env.output();
+        for i in 0..n {
+            for (j, joint) in model.joints.iter().enumerate() {
+                let tau = out.torques[i * NUM_JOINTS + j];
+                assert!(tau.abs() <= joint.effort + 1e-4, "torque {tau} on {}", joint.name);
+                let q = env.robot_state(i).q[j];
+                assert!(
+                    q >= joint.sim_lower - 0.12 && q <= joint.sim_upper + 0.12,
+                    "{} at {q} outside [{}, {}]",
+                    joint.name,
+                    joint.sim_lower,
+                    joint.sim_upper
+                );
+            }
+        }
+    }
+}
+
+/// One thread and two threads give bit-identical trajectories.
+#[test]
+fn thread_count_does_not_change_results() {
+    let run = |threads: usize| {
+        let mut cfg = TaskConfig::embedded_default();
+        cfg.env.envs_per_world = 8;
+        let mut env = batch(cfg, 40, 5, threads);
+        let mut state = 99;
+        let mut trace = Vec::new();
+        for _ in 0..60 {
+            let out = env.step(&random_actions(40, &mut state)).expect("step");
+            trace.extend_from_slice(&out.obs);
+            trace.extend_from_slice(&out.reward);
+        }
+        trace.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+    };
+    assert_eq!(run(1), run(2));
+}
+
+/// A physics blow-up in one env resets that env, is counted, and leaves the others untouched.
+#[test]
+fn nonfinite_env_is_reset_and_counted() {
+    let run = |poison: bool| {
+        let mut env = batch(TaskConfig::embedded_default(), 8, 2, 1);
+        let mut state = 5;
+        for _ in 0..10 {
+            env.step(&random_actions(8, &mut state)).expect("step");
+        }
+        if poison {
+            env.poison_env(3);
+        }
+        let out = env.step(&random_actions(8, &mut state)).expect("step").clone();
+        (out, env.nonfinite_resets())
+    };
+    let (clean, clean_count) = run(false);
+    let (hit, hit_count) = run(true);
+    assert_eq!(clean_count, 0);
+    assert_eq!(hit_count, 1);
+    assert_eq!(hit.nonfinite[3], 1);
+    assert_eq!(hit.terminated[3], 1);
+    assert_eq!(hit.reward[3], 0.0);
+    assert!(hit.obs.iter().chain(&hit.labels).chain(&hit.final_obs).all(|v| v.is_finite()));
+    for i in (0..8).filter(|&i| i != 3) {
+        let row = |o: &StepOutput| o.obs[i * OBS_DIM..(i + 1) * OBS_DIM].to_vec();
+        assert_eq!(row(&clean), row(&hit), "env {i} was disturbed");
+    }
+}
