@@ -91,7 +91,11 @@ fn terrain_from_name(name: &str) -> Result<Terrain> {
 
 /// Run the benchmark.
 pub fn run(args: &BenchArgs) -> Result<BenchReport> {
-    let threads = if args.threads == 0 { std::thread::available_parallelism()?.get() } else { args.threads };
+    let threads = if args.threads == 0 {
+        std::thread::available_parallelism()?.get()
+    } else {
+        args.threads
+    };
     let model = Arc::new(RobotModel::go2());
     let mut config = TaskConfig::embedded_default();
     for o in &args.overrides {
@@ -112,7 +116,9 @@ pub fn run(args: &BenchArgs) -> Result<BenchReport> {
     // A pool of action batches, drawn before timing so the RNG is not measured.
     let pool: Vec<Vec<f32>> = match args.actions {
         BenchActions::Stand => vec![vec![0.0; n]],
-        BenchActions::Random => (0..16).map(|_| (0..n).map(|_| rng.random_range(-1.0..=1.0)).collect()).collect(),
+        BenchActions::Random => (0..16)
+            .map(|_| (0..n).map(|_| rng.random_range(-1.0..=1.0)).collect())
+            .collect(),
     };
     let mut max_gap: f32 = 0.0;
     for i in 0..20 {
@@ -141,7 +147,11 @@ pub fn run(args: &BenchArgs) -> Result<BenchReport> {
         terrain: args.terrain.clone(),
         max_joint_gap_m: max_gap,
         nonfinite_resets: env.nonfinite_resets(),
-        physics_share: if physics + task > 0.0 { physics / (physics + task) } else { 1.0 },
+        physics_share: if physics + task > 0.0 {
+            physics / (physics + task)
+        } else {
+            1.0
+        },
         wall_s: wall,
     })
 }

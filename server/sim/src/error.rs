@@ -61,7 +61,15 @@ pub enum SimError {
 
 impl SimError {
     /// Shorthand for [`SimError::InvalidConfig`].
-    pub fn invalid(field: impl Into<String>, value: impl std::fmt::Display, allowed: impl Into<String>) -> Self {
-        SimError::InvalidConfig { field: field.into(), value: value.to_string(), allowed: allowed.into() }
+    pub fn invalid(
+        field: impl Into<String>,
+        value: impl std::fmt::Display,
+        allowed: impl Into<String>,
+    ) -> Self {
+        SimError::InvalidConfig {
+            field: field.into(),
+            value: value.to_string(),
+            allowed: allowed.into(),
+        }
     }
 }

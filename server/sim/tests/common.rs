@@ -22,20 +22,37 @@ enabled = false
 [env]
 random_initial_episode_step = false
 ";
-    TaskConfig::embedded_default().with_overrides(calm).and_then(|c| c.with_overrides(extra)).expect("valid test config")
+    TaskConfig::embedded_default()
+        .with_overrides(calm)
+        .and_then(|c| c.with_overrides(extra))
+        .expect("valid test config")
 }
 
 /// A batch of `n` envs on flat ground.
 pub fn batch(config: TaskConfig, n: usize, seed: u64, threads: usize) -> VecEnv {
-    let options = VecEnvOptions { num_envs: n, seed, threads, physics_only: false, autoreset: true };
-    VecEnv::new(Arc::new(RobotModel::go2()), config, Arc::new(Terrain::Flat), options).expect("batch builds")
+    let options = VecEnvOptions {
+        num_envs: n,
+        seed,
+        threads,
+        physics_only: false,
+        autoreset: true,
+    };
+    VecEnv::new(
+        Arc::new(RobotModel::go2()),
+        config,
+        Arc::new(Terrain::Flat),
+        options,
+    )
+    .expect("batch builds")
 }
 
 /// Deterministic pseudo-random actions in [-1, 1].
 pub fn random_actions(n: usize, state: &mut u64) -> Vec<f32> {
     (0..n * NUM_JOINTS)
         .map(|_| {
-            *state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            *state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             ((*state >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
         })
         .collect()

@@ -21,18 +21,42 @@ fn standing_robot_settles_and_stays_still() {
         }
     }
     let last = late.last().expect("states");
-    assert!((0.255..=0.285).contains(&last.base_pos.z), "base height {}", last.base_pos.z);
-    assert!(euler_pitch(last.base_rot).abs() < 0.02, "pitch {}", euler_pitch(last.base_rot));
+    assert!(
+        (0.255..=0.285).contains(&last.base_pos.z),
+        "base height {}",
+        last.base_pos.z
+    );
+    assert!(
+        euler_pitch(last.base_rot).abs() < 0.02,
+        "pitch {}",
+        euler_pitch(last.base_rot)
+    );
     // No drift or jitter over the last 5 s.
     for s in &late {
-        assert!((s.base_pos - last.base_pos).length() < 1e-3, "drift {:?} vs {:?}", s.base_pos, last.base_pos);
-        assert!(s.base_linvel.length() < 5e-3, "jitter {}", s.base_linvel.length());
+        assert!(
+            (s.base_pos - last.base_pos).length() < 1e-3,
+            "drift {:?} vs {:?}",
+            s.base_pos,
+            last.base_pos
+        );
+        assert!(
+            s.base_linvel.length() < 5e-3,
+            "jitter {}",
+            s.base_linvel.length()
+        );
     }
     // The feet carry the weight.
     let weight = GO2_MASS * 9.81;
     let carried: f32 = last.foot_force.iter().sum();
-    assert!((carried - weight).abs() < 0.03 * weight, "feet carry {carried} N of {weight} N");
-    assert!(last.max_joint_gap < 1e-3, "joint gap {}", last.max_joint_gap);
+    assert!(
+        (carried - weight).abs() < 0.03 * weight,
+        "feet carry {carried} N of {weight} N"
+    );
+    assert!(
+        last.max_joint_gap < 1e-3,
+        "joint gap {}",
+        last.max_joint_gap
+    );
 }
 
 /// Dropped with its feet 0.25 m above ground, the robot falls freely, lands on its feet and
@@ -53,11 +77,21 @@ fn dropped_robot_lands_and_settles() {
     for _ in 0..250 {
         let out = env.step(&zeros).expect("step");
         assert_eq!(out.terminated[0], 0, "the trunk hit the ground");
-        landed |= env.robot_state(0).foot_force.iter().filter(|f| **f > 1.0).count() >= 3;
+        landed |= env
+            .robot_state(0)
+            .foot_force
+            .iter()
+            .filter(|f| **f > 1.0)
+            .count()
+            >= 3;
     }
     assert!(landed, "never stood on its feet");
     let s = env.robot_state(0);
-    assert!((0.255..=0.285).contains(&s.base_pos.z), "settled at {}", s.base_pos.z);
+    assert!(
+        (0.255..=0.285).contains(&s.base_pos.z),
+        "settled at {}",
+        s.base_pos.z
+    );
     assert!(s.base_linvel.length() < 0.01);
 }
 
@@ -72,13 +106,20 @@ fn extreme_targets_respect_joint_and_torque_limits() {
     let model = RobotModel::go2();
     let mut state = 11;
     for _ in 0..250 {
-        let actions: Vec<f32> = random_actions(n, &mut state).iter().map(|a| a.signum() * 100.0).collect();
+        let actions: Vec<f32> = random_actions(n, &mut state)
+            .iter()
+            .map(|a| a.signum() * 100.0)
+            .collect();
         env.step(&actions).expect("step");
         let out = env.output();
         for i in 0..n {
             for (j, joint) in model.joints.iter().enumerate() {
                 let tau = out.torques[i * NUM_JOINTS + j];
-                assert!(tau.abs() <= joint.effort + 1e-4, "torque {tau} on {}", joint.name);
+                assert!(
+                    tau.abs() <= joint.effort + 1e-4,
+                    "torque {tau} on {}",
+                    joint.name
+                );
                 let q = env.robot_state(i).q[j];
                 assert!(
                     q >= joint.sim_lower - 0.12 && q <= joint.sim_upper + 0.12,
@@ -123,7 +164,10 @@ fn nonfinite_env_is_reset_and_counted() {
         if poison {
             env.poison_env(3);
         }
-        let out = env.step(&random_actions(8, &mut state)).expect("step").clone();
+        let out = env
+            .step(&random_actions(8, &mut state))
+            .expect("step")
+            .clone();
         (out, env.nonfinite_resets())
     };
     let (clean, clean_count) = run(false);
@@ -133,7 +177,13 @@ fn nonfinite_env_is_reset_and_counted() {
     assert_eq!(hit.nonfinite[3], 1);
     assert_eq!(hit.terminated[3], 1);
     assert_eq!(hit.reward[3], 0.0);
-    assert!(hit.obs.iter().chain(&hit.labels).chain(&hit.final_obs).all(|v| v.is_finite()));
+    assert!(
+        hit.obs
+            .iter()
+            .chain(&hit.labels)
+            .chain(&hit.final_obs)
+            .all(|v| v.is_finite())
+    );
     for i in (0..8).filter(|&i| i != 3) {
         let row = |o: &StepOutput| o.obs[i * OBS_DIM..(i + 1) * OBS_DIM].to_vec();
         assert_eq!(row(&clean), row(&hit), "env {i} was disturbed");

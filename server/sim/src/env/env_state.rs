@@ -37,7 +37,11 @@ pub struct EnvState {
 
 /// Draw a command from `ranges`; components below `zero_below` in magnitude become 0.
 pub fn sample_command(ranges: &CommandRanges, zero_below: f32, rng: &mut ChaCha8Rng) -> [f32; 3] {
-    let mut c = [uniform(rng, ranges.vx), uniform(rng, ranges.vy), uniform(rng, ranges.wz)];
+    let mut c = [
+        uniform(rng, ranges.vx),
+        uniform(rng, ranges.vy),
+        uniform(rng, ranges.wz),
+    ];
     for v in &mut c {
         if v.abs() < zero_below {
             *v = 0.0;
@@ -50,7 +54,11 @@ impl EnvState {
     /// Draw a task mode.
     pub fn sample_mode(&mut self, cfg: &TaskConfig) {
         let biped = self.rng.random::<f32>() < cfg.modes.biped_probability;
-        self.mode = if biped { TaskMode::Biped } else { TaskMode::Quad };
+        self.mode = if biped {
+            TaskMode::Biped
+        } else {
+            TaskMode::Quad
+        };
     }
 
     /// Draw commands for the current mode.

@@ -11,14 +11,15 @@ use rapier3d::math::{Pose, Rotation, Vec3};
 use crate::physics::{ActuatorParams, RobotState, RobotWorld};
 use crate::robot::{NUM_FEET, NUM_JOINTS, RobotModel};
 use crate::task::{
-    self, LABEL_DIM, OBS_DIM, PRIVILEGED_DIM, Randomization, RewardInputs, RewardTerm, TaskContext, TaskMode,
-    euler_pitch, gait_coefficients, heading_direction, projected_gravity, to_heading_frame, uniform,
+    self, LABEL_DIM, OBS_DIM, PRIVILEGED_DIM, Randomization, RewardInputs, RewardTerm, TaskContext,
+    TaskMode, euler_pitch, gait_coefficients, heading_direction, projected_gravity,
+    to_heading_frame, uniform,
 };
 use crate::terrain::Terrain;
 
+use super::EnvId;
 use super::env_state::EnvState;
 use super::output::OutputChunk;
-use super::EnvId;
 
 /// Time spent per stage (seconds, summed over groups).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -67,7 +68,12 @@ fn env_rng(seed: u64, index: u32) -> ChaCha8Rng {
 impl EnvGroup {
     /// A group of envs `first .. first + count`, all reset.
     pub fn new(sh: &Shared, first: usize, count: usize, seed: u64) -> Self {
-        let world = RobotWorld::new(sh.model, count, sh.terrain.collider(), &sh.ctx.config.physics);
+        let world = RobotWorld::new(
+            sh.model,
+            count,
+            sh.terrain.collider(),
+            &sh.ctx.config.physics,
+        );
         let nominal = Randomization::nominal(&sh.model.config);
         let envs = (0..count)
             .map(|i| {
@@ -168,7 +174,8 @@ impl EnvGroup {
         let (x, y) = sh.terrain.env_origin(env.id.index(), sh.num_envs);
         let ground = sh.terrain.max_height_within(x, y, 0.6);
         let base = Pose::from_parts(Vec3::new(x, y, ground - lowest + init.spawn_clearance), rot);
-        self.world.set_robot_state(model, slot, base, linvel, angvel, &q);
+        self.world
+            .set_robot_state(model, slot, base, linvel, angvel, &q);
         env.origin = [x, y];
 
         env.sample_mode(cfg);
@@ -195,8 +202,8 @@ impl EnvGroup {
 
     /// Reset the envs whose `mask` entry is non-zero and rewrite their rows of `out`.
     pub fn reset_masked(&mut self, sh: &Shared, mask: &[u8], out: &mut OutputChunk) {
-        for slot in 0..self.envs.len() {
-            if mask[slot] != 0 {
+        for (slot, &m) in mask.iter().enumerate().take(self.envs.len()) {
+            if m != 0 {
                 self.reset_env(sh, slot, false);
                 self.write_env(sh, slot, out);
             }
@@ -212,8 +219,17 @@ impl EnvGroup {
     fn write_env(&mut self, sh: &Shared, slot: usize, out: &mut OutputChunk) {
         let env = &mut self.envs[slot];
         let s = &self.states[slot];
-        write_observation(sh, env, s, &mut out.obs[slot * OBS_DIM..(slot + 1) * OBS_DIM]);
-        write_labels(sh, s, &mut out.labels[slot * LABEL_DIM..(slot + 1) * LABEL_DIM]);
+        write_observation(
+            sh,
+            env,
+            s,
+            &mut out.obs[slot * OBS_DIM..(slot + 1) * OBS_DIM],
+        );
+        write_labels(
+            sh,
+            s,
+            &mut out.labels[slot * LABEL_DIM..(slot + 1) * LABEL_DIM],
+        );
         out.privileged[slot * PRIVILEGED_DIM..(slot + 1) * PRIVILEGED_DIM]
             .copy_from_slice(&env.randomization.privileged());
         out.mode[slot] = env.mode as u8;
@@ -234,12 +250,14 @@ impl EnvGroup {
                 // Targets beyond a joint's range only press it into its stop: clip them there,
                 // as the robot's own joint controller does.
                 let joint = &sh.model.joints[j];
-                self.targets[slot * NUM_JOINTS + j] =
-                    (sh.ctx.default_q[j] + cfg.env.action_scale * a).clamp(joint.sim_lower, joint.sim_upper);
+                self.targets[slot * NUM_JOINTS + j] = (sh.ctx.default_q[j]
+                    + cfg.env.action_scale * a)
+                    .clamp(joint.sim_lower, joint.sim_upper);
             }
         }
         for _ in 0..cfg.env.decimation {
-            self.world.step(sh.model, &self.targets, &self.actuators, &mut self.torques);
+            self.world
+                .step(sh.model, &self.targets, &self.actuators, &mut self.torques);
         }
         self.world.read_states(sh.model, &mut self.states);
         out.torques.copy_from_slice(&self.torques);
@@ -277,7 +295,13 @@ impl EnvGroup {
             let s = &self.states[slot];
             terminated = s.trunk_force > cfg.rewards.contact_threshold;
             truncated = !terminated && self.envs[slot].episode_step >= ctx.max_episode_steps;
-            let inputs = reward_inputs(sh, &self.envs[slot], s, terminated, &self.torques[slot * NUM_JOINTS..]);
+            let inputs = reward_inputs(
+                sh,
+                &self.envs[slot],
+                s,
+                terminated,
+                &self.torques[slot * NUM_JOINTS..],
+            );
             let raw = task::raw_terms(&inputs, &ctx.reward, cfg);
             let ind = task::indicators(self.envs[slot].mode == TaskMode::Biped, inputs.pitch, cfg);
             out.reward[slot] = task::weigh_terms(&raw, &ind, cfg, terms);
@@ -303,7 +327,8 @@ impl EnvGroup {
                 out.final_obs[range(OBS_DIM)].fill(0.0);
                 out.final_labels[range(LABEL_DIM)].fill(0.0);
             }
-            out.final_privileged[range(PRIVILEGED_DIM)].copy_from_slice(&self.envs[slot].randomization.privileged());
+            out.final_privileged[range(PRIVILEGED_DIM)]
+                .copy_from_slice(&self.envs[slot].randomization.privileged());
             if autoreset || !finite {
                 self.reset_env(sh, slot, false);
             }
@@ -311,8 +336,8 @@ impl EnvGroup {
             let env = &mut self.envs[slot];
             env.last_qd = self.states[slot].qd;
             let step = env.episode_step;
-            let mut resample_command = step % ctx.command_interval == 0;
-            if step % ctx.mode_interval == 0 {
+            let mut resample_command = step.is_multiple_of(ctx.command_interval);
+            if step.is_multiple_of(ctx.mode_interval) {
                 let before = env.mode;
                 env.sample_mode(cfg);
                 resample_command |= env.mode != before;
@@ -320,9 +345,13 @@ impl EnvGroup {
             if resample_command {
                 env.sample_command(cfg);
             }
-            if ctx.push_interval.is_some_and(|p| step % p == 0) {
+            if ctx.push_interval.is_some_and(|p| step.is_multiple_of(p)) {
                 let v = cfg.randomization.push_velocity;
-                let delta = Vec3::new(uniform(&mut env.rng, [-v, v]), uniform(&mut env.rng, [-v, v]), 0.0);
+                let delta = Vec3::new(
+                    uniform(&mut env.rng, [-v, v]),
+                    uniform(&mut env.rng, [-v, v]),
+                    0.0,
+                );
                 self.world.add_base_velocity(slot, delta);
             }
         }
@@ -338,7 +367,13 @@ fn foot_clearance_heights(sh: &Shared, s: &RobotState, radius: f32) -> [f32; NUM
     })
 }
 
-fn reward_inputs(sh: &Shared, env: &EnvState, s: &RobotState, terminated: bool, torques: &[f32]) -> RewardInputs {
+fn reward_inputs(
+    sh: &Shared,
+    env: &EnvState,
+    s: &RobotState,
+    terminated: bool,
+    torques: &[f32],
+) -> RewardInputs {
     let cfg = &sh.ctx.config;
     let inv = s.base_rot.inverse();
     let heading = heading_direction(s.base_rot);
@@ -346,7 +381,9 @@ fn reward_inputs(sh: &Shared, env: &EnvState, s: &RobotState, terminated: bool, 
     let normal = sh.terrain.normal(s.base_pos.x, s.base_pos.y);
     let phase = env.gait_phase(cfg);
     let coeffs = |offsets: [f32; 4]| {
-        std::array::from_fn(|f| gait_coefficients(&sh.ctx.cdf, phase + offsets[f], cfg.gait.swing_ratio))
+        std::array::from_fn(|f| {
+            gait_coefficients(&sh.ctx.cdf, phase + offsets[f], cfg.gait.swing_ratio)
+        })
     };
     RewardInputs {
         terminated,
@@ -401,19 +438,22 @@ pub fn write_observation(sh: &Shared, env: &mut EnvState, s: &RobotState, row: &
     push(f32::from(u8::from(!biped)));
     for (f, theta) in offsets.iter().enumerate() {
         let rear = f >= 2;
-        push(if biped && rear { 0.0 } else { (std::f32::consts::TAU * (phase + theta)).sin() });
+        push(if biped && rear {
+            0.0
+        } else {
+            (std::f32::consts::TAU * (phase + theta)).sin()
+        });
     }
     push(cfg.gait.swing_ratio);
     push(1.0 - cfg.gait.swing_ratio);
     debug_assert_eq!(i, OBS_DIM);
     let clip = cfg.env.clip_observations;
-    for k in 0..OBS_DIM {
-        let mut v = row[k] * ctx.obs_scale[k];
-        let n = ctx.obs_noise[k];
-        if n > 0.0 {
-            v += n * (2.0 * env.rng.random::<f32>() - 1.0);
+    for ((value, scale), noise) in row.iter_mut().zip(&ctx.obs_scale).zip(&ctx.obs_noise) {
+        let mut v = *value * scale;
+        if *noise > 0.0 {
+            v += noise * (2.0 * env.rng.random::<f32>() - 1.0);
         }
-        row[k] = v.clamp(-clip, clip);
+        *value = v.clamp(-clip, clip);
     }
 }
 

@@ -88,7 +88,7 @@ impl StepOutput {
         let mut nonfinite = self.nonfinite.chunks_mut(envs);
         let mut torques = self.torques.chunks_mut(envs * NUM_JOINTS);
         let mut chunks = Vec::new();
-        while let Some(reward) = reward.next() {
+        for reward in reward.by_ref() {
             // Every array has the same number of chunks, so the other iterators cannot run dry.
             chunks.push(OutputChunk {
                 obs: obs.next().unwrap_or_default(),

@@ -30,7 +30,13 @@ pub struct VecEnvOptions {
 
 impl Default for VecEnvOptions {
     fn default() -> Self {
-        Self { num_envs: 1, seed: 0, threads: 0, physics_only: false, autoreset: true }
+        Self {
+            num_envs: 1,
+            seed: 0,
+            threads: 0,
+            physics_only: false,
+            autoreset: true,
+        }
     }
 }
 
@@ -100,7 +106,10 @@ impl VecEnv {
         let sh = env.shared();
         let seed = env.options.seed;
         let groups: Vec<EnvGroup> = env.pool.install(|| {
-            firsts.par_iter().map(|&first| EnvGroup::new(&sh, first, epw.min(n - first), seed)).collect()
+            firsts
+                .par_iter()
+                .map(|&first| EnvGroup::new(&sh, first, epw.min(n - first), seed))
+                .collect()
         });
         env.groups = groups;
         env.reset_all(true);
@@ -129,7 +138,10 @@ impl VecEnv {
         let chunks = self.out.chunks_mut(epw);
         let groups = &mut self.groups;
         self.pool.install(|| {
-            groups.par_iter_mut().zip(chunks).for_each(|(g, mut chunk)| g.reset_all(&sh, first, &mut chunk));
+            groups
+                .par_iter_mut()
+                .zip(chunks)
+                .for_each(|(g, mut chunk)| g.reset_all(&sh, first, &mut chunk));
         });
     }
 
@@ -143,7 +155,12 @@ impl VecEnv {
     pub fn reset_envs(&mut self, mask: &[u8]) -> Result<&StepOutput, SimError> {
         let n = self.options.num_envs;
         if mask.len() != n {
-            return Err(SimError::Shape { name: "reset_mask".into(), got: mask.len(), expected: n, detail: format!("{n} envs") });
+            return Err(SimError::Shape {
+                name: "reset_mask".into(),
+                got: mask.len(),
+                expected: n,
+                detail: format!("{n} envs"),
+            });
         }
         let epw = self.ctx.config.env.envs_per_world;
         let sh = Shared {
@@ -221,7 +238,11 @@ impl VecEnv {
 
     /// Worst joint anchor separation over all envs after the last step (m).
     pub fn max_joint_gap(&self) -> f32 {
-        self.groups.iter().flat_map(|g| g.states()).map(|s| s.max_joint_gap).fold(0.0, f32::max)
+        self.groups
+            .iter()
+            .flat_map(|g| g.states())
+            .map(|s| s.max_joint_gap)
+            .fold(0.0, f32::max)
     }
 
     /// Measured state of env `i` after the last step.
@@ -244,10 +265,12 @@ impl VecEnv {
 
     /// Time per stage summed over groups since creation (CPU seconds).
     pub fn stage_times(&self) -> StageTimes {
-        self.groups.iter().fold(StageTimes::default(), |acc, g| StageTimes {
-            physics: acc.physics + g.times.physics,
-            task: acc.task + g.times.task,
-        })
+        self.groups
+            .iter()
+            .fold(StageTimes::default(), |acc, g| StageTimes {
+                physics: acc.physics + g.times.physics,
+                task: acc.task + g.times.task,
+            })
     }
 
     /// Envs reset because their physics went non-finite, since creation.

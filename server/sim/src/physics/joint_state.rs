@@ -21,7 +21,12 @@ pub fn joint_angle(parent_rot: Rotation, child_rot: Rotation, axis: Vec3) -> f32
 
 /// Joint speed (rad/s): relative angular velocity projected on the world joint axis.
 #[inline]
-pub fn joint_speed(child_rot: Rotation, parent_angvel: Vec3, child_angvel: Vec3, axis: Vec3) -> f32 {
+pub fn joint_speed(
+    child_rot: Rotation,
+    parent_angvel: Vec3,
+    child_angvel: Vec3,
+    axis: Vec3,
+) -> f32 {
     (child_angvel - parent_angvel).dot(child_rot * axis)
 }
 
@@ -34,14 +39,22 @@ mod test {
         let parent = Rotation::from_euler(rapier3d::math::glamx::EulerRot::XYZ, 0.3, -1.2, 2.0);
         for &q in &[-2.9f32, -1.5, 0.0, 0.7, 3.0] {
             let child = parent * Rotation::from_axis_angle(Vec3::Y, q);
-            assert!((joint_angle(parent, child, Vec3::Y) - q).abs() < 1e-5, "q = {q}");
+            assert!(
+                (joint_angle(parent, child, Vec3::Y) - q).abs() < 1e-5,
+                "q = {q}"
+            );
         }
     }
 
     #[test]
     fn speed_is_relative_rate_about_axis() {
         let child = Rotation::from_rotation_z(0.5);
-        let w = joint_speed(child, Vec3::new(0.0, 0.0, 1.0), Vec3::new(0.0, 0.0, 3.0), Vec3::Z);
+        let w = joint_speed(
+            child,
+            Vec3::new(0.0, 0.0, 1.0),
+            Vec3::new(0.0, 0.0, 3.0),
+            Vec3::Z,
+        );
         assert!((w - 2.0).abs() < 1e-6);
     }
 }

@@ -40,7 +40,14 @@ pub struct PhysicsParams {
 
 impl Default for PhysicsParams {
     fn default() -> Self {
-        Self { dt: 0.005, solver_iterations: 4, pgs_iterations: 1, gravity: 9.81, extra_iterations_on_leg_contact: 4, min_link_inertia: 0.002 }
+        Self {
+            dt: 0.005,
+            solver_iterations: 4,
+            pgs_iterations: 1,
+            gravity: 9.81,
+            extra_iterations_on_leg_contact: 4,
+            min_link_inertia: 0.002,
+        }
     }
 }
 
@@ -87,7 +94,12 @@ impl RobotPhysicalParams {
     pub fn nominal(model: &RobotModel) -> Self {
         let c = &model.config;
         Self {
-            actuator: ActuatorParams { kp: c.kp, kd: c.kd, damping: c.joint_damping, friction: c.joint_friction },
+            actuator: ActuatorParams {
+                kp: c.kp,
+                kd: c.kd,
+                damping: c.joint_damping,
+                friction: c.joint_friction,
+            },
             armature: c.armature,
             payload: 0.0,
             com_offset: Vec3::ZERO,
@@ -126,8 +138,16 @@ impl RobotWorld {
     /// A world with `count` robots of `model` over the terrain `terrain` (a collider builder for
     /// a fixed body: a half-space, heightfield or mesh). Robots start at the origin in the default
     /// pose; place them with [`RobotWorld::set_robot_state`].
-    pub fn new(model: &RobotModel, count: usize, terrain: ColliderBuilder, params: &PhysicsParams) -> Self {
-        let mut integration = IntegrationParameters { dt: params.dt, ..Default::default() };
+    pub fn new(
+        model: &RobotModel,
+        count: usize,
+        terrain: ColliderBuilder,
+        params: &PhysicsParams,
+    ) -> Self {
+        let mut integration = IntegrationParameters {
+            dt: params.dt,
+            ..Default::default()
+        };
         integration.num_solver_iterations = params.solver_iterations;
         integration.num_internal_pgs_iterations = params.pgs_iterations;
         let mut world = Self {
@@ -156,7 +176,11 @@ impl RobotWorld {
                 .friction(1.0)
                 .restitution(0.0)
                 .user_data(TERRAIN_TAG)
-                .collision_groups(InteractionGroups::new(TERRAIN, ROBOTS, InteractionTestMode::And)),
+                .collision_groups(InteractionGroups::new(
+                    TERRAIN,
+                    ROBOTS,
+                    InteractionTestMode::And,
+                )),
         );
         let nominal = RobotPhysicalParams::nominal(model);
         for slot in 0..count {
@@ -184,15 +208,24 @@ impl RobotWorld {
                 .pose(poses[b])
                 .user_data(slot as u128)
                 .can_sleep(false)
-                .additional_mass_properties(body_mass_properties(model, b, params, self.min_link_inertia))
+                .additional_mass_properties(body_mass_properties(
+                    model,
+                    b,
+                    params,
+                    self.min_link_inertia,
+                ))
                 .build();
             let h = self.bodies.insert(rb);
             for c in &body.colliders {
                 let shape = match c.geometry.shape {
-                    Shape::Box { size } => SharedShape::cuboid(size.x / 2.0, size.y / 2.0, size.z / 2.0),
+                    Shape::Box { size } => {
+                        SharedShape::cuboid(size.x / 2.0, size.y / 2.0, size.z / 2.0)
+                    }
                     // Cylinders become capsules, as in legged_gym (`replace_cylinder_with_capsule`):
                     // cheaper and smoother contacts.
-                    Shape::Cylinder { radius, length } => SharedShape::capsule_z(length / 2.0, radius),
+                    Shape::Cylinder { radius, length } => {
+                        SharedShape::capsule_z(length / 2.0, radius)
+                    }
                     Shape::Sphere { radius } => SharedShape::ball(radius),
                 };
                 let collider = ColliderBuilder::new(shape)
@@ -202,8 +235,13 @@ impl RobotWorld {
                     .friction_combine_rule(CoefficientCombineRule::Multiply)
                     .restitution(0.0)
                     .user_data(robot_tag(slot, b, c.role))
-                    .collision_groups(InteractionGroups::new(ROBOTS, TERRAIN, InteractionTestMode::And));
-                self.colliders.insert_with_parent(collider, h, &mut self.bodies);
+                    .collision_groups(InteractionGroups::new(
+                        ROBOTS,
+                        TERRAIN,
+                        InteractionTestMode::And,
+                    ));
+                self.colliders
+                    .insert_with_parent(collider, h, &mut self.bodies);
             }
             handles.push(h);
         }
@@ -214,16 +252,31 @@ impl RobotWorld {
                 .limits([joint.sim_lower, joint.sim_upper])
                 .contacts_enabled(false)
                 .build();
-            self.impulse_joints.insert(handles[joint.parent_body], handles[joint.child_body], j, true);
+            self.impulse_joints.insert(
+                handles[joint.parent_body],
+                handles[joint.child_body],
+                j,
+                true,
+            );
         }
         self.robots.push(RobotHandles { bodies: handles });
     }
 
     /// Apply new physical parameters (mass, armature, friction) to robot `slot`.
-    pub fn set_physical_params(&mut self, model: &RobotModel, slot: usize, params: &RobotPhysicalParams) {
+    pub fn set_physical_params(
+        &mut self,
+        model: &RobotModel,
+        slot: usize,
+        params: &RobotPhysicalParams,
+    ) {
         for (b, &h) in self.robots[slot].bodies.iter().enumerate() {
-            let Some(rb) = self.bodies.get_mut(h) else { continue };
-            rb.set_additional_mass_properties(body_mass_properties(model, b, params, self.min_link_inertia), true);
+            let Some(rb) = self.bodies.get_mut(h) else {
+                continue;
+            };
+            rb.set_additional_mass_properties(
+                body_mass_properties(model, b, params, self.min_link_inertia),
+                true,
+            );
             for &ch in rb.colliders() {
                 if let Some(c) = self.colliders.get_mut(ch) {
                     c.set_friction(params.friction);
@@ -246,7 +299,9 @@ impl RobotWorld {
         let local = model.forward_kinematics(q);
         self.faulted[slot] = false;
         for (b, &h) in self.robots[slot].bodies.iter().enumerate() {
-            let Some(rb) = self.bodies.get_mut(h) else { continue };
+            let Some(rb) = self.bodies.get_mut(h) else {
+                continue;
+            };
             rb.set_enabled(true);
             let pose = base * local[b];
             rb.set_position(pose, true);
@@ -278,11 +333,18 @@ impl RobotWorld {
             for (j, joint) in model.joints.iter().enumerate() {
                 let (p, c) = (joint.parent_body, joint.child_body);
                 let q = joint_angle(self.scratch_rot[p], self.scratch_rot[c], joint.axis);
-                let qd = joint_speed(self.scratch_rot[c], self.scratch_angvel[p], self.scratch_angvel[c], joint.axis);
+                let qd = joint_speed(
+                    self.scratch_rot[c],
+                    self.scratch_angvel[p],
+                    self.scratch_angvel[c],
+                    joint.axis,
+                );
                 let i = slot * NUM_JOINTS + j;
                 let motor = pd_torque(targets[i], q, qd, act.kp, act.kd, joint.effort);
                 torques[i] = motor;
-                let tau = motor + passive_torque(qd, act.damping, act.friction) + limit_torque(q, qd, joint.sim_lower, joint.sim_upper);
+                let tau = motor
+                    + passive_torque(qd, act.damping, act.friction)
+                    + limit_torque(q, qd, joint.sim_lower, joint.sim_upper);
                 let axis = self.scratch_rot[c] * joint.axis * tau;
                 self.bodies[robot.bodies[c]].add_torque(axis, false);
                 self.bodies[robot.bodies[p]].add_torque(-axis, false);
@@ -305,10 +367,12 @@ impl RobotWorld {
         );
         // Rapier disables bodies whose state turned non-finite; the env layer resets the robot.
         for &h in self.pipeline.quarantine().bodies() {
-            if let Some(b) = self.bodies.get(h) {
-                if let Some(f) = self.faulted.get_mut(b.user_data as usize) {
-                    *f = true;
-                }
+            if let Some(f) = self
+                .bodies
+                .get(h)
+                .and_then(|b| self.faulted.get_mut(b.user_data as usize))
+            {
+                *f = true;
             }
         }
     }
@@ -353,10 +417,17 @@ impl RobotWorld {
             if !pair.has_any_active_contact() {
                 continue;
             }
-            let (Some(c1), Some(c2)) = (self.colliders.get(pair.collider1), self.colliders.get(pair.collider2)) else {
+            let (Some(c1), Some(c2)) = (
+                self.colliders.get(pair.collider1),
+                self.colliders.get(pair.collider2),
+            ) else {
                 continue;
             };
-            let tag = if c1.user_data == TERRAIN_TAG { c2.user_data } else { c1.user_data };
+            let tag = if c1.user_data == TERRAIN_TAG {
+                c2.user_data
+            } else {
+                c1.user_data
+            };
             if tag == TERRAIN_TAG {
                 continue;
             }
@@ -377,13 +448,13 @@ impl RobotWorld {
                 _ => s.other_contacts += 1,
             }
         }
-        for slot in 0..self.robots.len() {
-            let s = &out[slot];
+        for (slot, s) in out.iter().enumerate().take(self.robots.len()) {
             // A joint at its stop, or fast enough to reach it within the next policy step.
             let reach = LIMIT_MARGIN;
             let at_limit = model.joints.iter().enumerate().any(|(j, joint)| {
                 let ahead = s.q[j] + s.qd[j] * LIMIT_LOOKAHEAD_S;
-                s.q[j].min(ahead) < joint.sim_lower + reach || s.q[j].max(ahead) > joint.sim_upper - reach
+                s.q[j].min(ahead) < joint.sim_lower + reach
+                    || s.q[j].max(ahead) > joint.sim_upper - reach
             });
             let hard = s.penalised_contacts + s.other_contacts > 0 || at_limit;
             let extra = if hard { self.extra_on_leg_contact } else { 0 };
@@ -402,7 +473,11 @@ impl RobotWorld {
             for joint in &model.joints {
                 let pb = &self.bodies[robot.bodies[joint.parent_body]];
                 let cb = &self.bodies[robot.bodies[joint.child_body]];
-                gap = gap.max(pb.position().transform_point(joint.origin.translation).distance(cb.translation()));
+                gap = gap.max(
+                    pb.position()
+                        .transform_point(joint.origin.translation)
+                        .distance(cb.translation()),
+                );
             }
         }
         gap
@@ -428,7 +503,11 @@ impl RobotWorld {
 
     /// World poses of all bodies of robot `slot` (for visualisation).
     pub fn body_poses(&self, slot: usize) -> Vec<Pose> {
-        self.robots[slot].bodies.iter().map(|&h| *self.bodies[h].position()).collect()
+        self.robots[slot]
+            .bodies
+            .iter()
+            .map(|&h| *self.bodies[h].position())
+            .collect()
     }
 
     /// Poison robot `slot` with a NaN velocity (test hook for the non-finite guard).
@@ -469,7 +548,12 @@ pub const CONTACT_FORCE_THRESHOLD: f32 = 0.1;
 
 /// Mass properties of body `b` of `model` with `params` applied: payload and CoM shift on the
 /// trunk, rotor inertia about the joint axis on every other body.
-fn body_mass_properties(model: &RobotModel, b: usize, params: &RobotPhysicalParams, min_inertia: f32) -> MassProperties {
+fn body_mass_properties(
+    model: &RobotModel,
+    b: usize,
+    params: &RobotPhysicalParams,
+    min_inertia: f32,
+) -> MassProperties {
     let body = &model.bodies[b];
     let inertial = body.inertial;
     let (mut mass, mut com, mut inertia) = (inertial.mass, inertial.com, inertial.inertia);

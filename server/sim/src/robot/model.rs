@@ -107,19 +107,31 @@ impl RobotModel {
     pub fn new(description: &RobotDescription, config: &RobotConfig) -> Result<Self, SimError> {
         let err = |m: String| SimError::Robot(m);
         if config.joint_names.len() != NUM_JOINTS {
-            return Err(err(format!("{} joint names given, {NUM_JOINTS} needed", config.joint_names.len())));
+            return Err(err(format!(
+                "{} joint names given, {NUM_JOINTS} needed",
+                config.joint_names.len()
+            )));
         }
         if config.default_joint_pos.len() != NUM_JOINTS {
-            return Err(err(format!("{} default joint angles given, {NUM_JOINTS} needed", config.default_joint_pos.len())));
+            return Err(err(format!(
+                "{} default joint angles given, {NUM_JOINTS} needed",
+                config.default_joint_pos.len()
+            )));
         }
         if config.foot_names.len() != NUM_FEET {
-            return Err(err(format!("{} feet given, {NUM_FEET} needed", config.foot_names.len())));
+            return Err(err(format!(
+                "{} feet given, {NUM_FEET} needed",
+                config.foot_names.len()
+            )));
         }
         let trunk = description
             .link_index(&config.trunk_link)
             .ok_or_else(|| err(format!("no link named `{}`", config.trunk_link)))?;
         if trunk != description.root {
-            return Err(err(format!("trunk `{}` is not the root link", config.trunk_link)));
+            return Err(err(format!(
+                "trunk `{}` is not the root link",
+                config.trunk_link
+            )));
         }
         // Bodies in breadth-first order from the trunk, so parents come first.
         let mut order = vec![trunk];
@@ -164,10 +176,16 @@ impl RobotModel {
             .collect();
         for (j, q0) in joints.iter().zip(&config.default_joint_pos) {
             if !(j.sim_lower..=j.sim_upper).contains(q0) {
-                return Err(err(format!("default angle {q0} of `{}` is outside its limits", j.name)));
+                return Err(err(format!(
+                    "default angle {q0} of `{}` is outside its limits",
+                    j.name
+                )));
             }
             if j.origin.rotation.angle_between(Rotation::IDENTITY) > 1e-6 {
-                return Err(err(format!("joint `{}` has a rotated origin; only aligned link frames are supported", j.name)));
+                return Err(err(format!(
+                    "joint `{}` has a rotated origin; only aligned link frames are supported",
+                    j.name
+                )));
             }
         }
 
@@ -177,22 +195,33 @@ impl RobotModel {
             let l = &description.links[link];
             let parent_joint = joints.iter().position(|j| j.child_body == b);
             if b > 0 && parent_joint.is_none() {
-                return Err(err(format!("link `{}` hangs on a joint that is not actuated", l.name)));
+                return Err(err(format!(
+                    "link `{}` hangs on a joint that is not actuated",
+                    l.name
+                )));
             }
             let colliders = l
                 .collisions
                 .iter()
                 .map(|g| {
-                    let role = if let Some(f) = config.foot_names.iter().position(|n| *n == g.name) {
+                    let role = if let Some(f) = config.foot_names.iter().position(|n| *n == g.name)
+                    {
                         ColliderRole::Foot(f as u8)
                     } else if b == 0 {
                         ColliderRole::Trunk
-                    } else if config.penalised_links.iter().any(|p| l.name.contains(p.as_str())) {
+                    } else if config
+                        .penalised_links
+                        .iter()
+                        .any(|p| l.name.contains(p.as_str()))
+                    {
                         ColliderRole::Penalised
                     } else {
                         ColliderRole::Other
                     };
-                    ColliderModel { geometry: g.clone(), role }
+                    ColliderModel {
+                        geometry: g.clone(),
+                        role,
+                    }
                 })
                 .collect();
             bodies.push(BodyModel {
@@ -205,25 +234,40 @@ impl RobotModel {
         }
         for name in &config.foot_names {
             let found = bodies.iter().enumerate().find_map(|(b, body)| {
-                body.colliders.iter().find(|c| c.geometry.name == *name).map(|c| (b, c))
+                body.colliders
+                    .iter()
+                    .find(|c| c.geometry.name == *name)
+                    .map(|c| (b, c))
             });
-            let (b, c) = found.ok_or_else(|| err(format!("no collision element named `{name}`")))?;
+            let (b, c) =
+                found.ok_or_else(|| err(format!("no collision element named `{name}`")))?;
             let radius = match c.geometry.shape {
                 super::description::Shape::Sphere { radius } => radius,
                 _ => return Err(err(format!("foot `{name}` is not a sphere"))),
             };
-            feet.push(FootModel { body: b, offset: c.geometry.origin.translation, radius });
+            feet.push(FootModel {
+                body: b,
+                offset: c.geometry.origin.translation,
+                radius,
+            });
         }
         let joints: [JointModel; NUM_JOINTS] =
             joints.try_into().map_err(|_| err("joint count".into()))?;
         let feet: [FootModel; NUM_FEET] = feet.try_into().map_err(|_| err("foot count".into()))?;
-        Ok(Self { bodies, joints, feet, config: config.clone() })
+        Ok(Self {
+            bodies,
+            joints,
+            feet,
+            config: config.clone(),
+        })
     }
 
     /// The embedded Go2 (our URDF in `assets/go2/`, compiled in) with the default config.
     pub fn go2() -> Self {
-        let description = super::urdf::parse_urdf(GO2_URDF).expect("the embedded Go2 URDF is valid");
-        Self::new(&description, &RobotConfig::default()).expect("the embedded Go2 config fits its URDF")
+        let description =
+            super::urdf::parse_urdf(GO2_URDF).expect("the embedded Go2 URDF is valid");
+        Self::new(&description, &RobotConfig::default())
+            .expect("the embedded Go2 config fits its URDF")
     }
 
     /// Poses of all bodies in the trunk frame for the given joint angles (forward kinematics).
@@ -232,7 +276,10 @@ impl RobotModel {
         for (b, body) in self.bodies.iter().enumerate().skip(1) {
             if let (Some(p), Some(j)) = (body.parent, body.joint) {
                 let joint = &self.joints[j];
-                let local = Pose::from_parts(joint.origin.translation, Rotation::from_axis_angle(joint.axis, q[j]));
+                let local = Pose::from_parts(
+                    joint.origin.translation,
+                    Rotation::from_axis_angle(joint.axis, q[j]),
+                );
                 poses[b] = poses[p] * local;
             }
         }

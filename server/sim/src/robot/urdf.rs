@@ -8,7 +8,9 @@ use std::path::Path;
 
 use rapier3d::math::{Mat3, Pose, Vec3};
 
-use super::description::{Geometry, Inertial, Joint, Link, RobotDescription, Shape, pose_from_xyz_rpy};
+use super::description::{
+    Geometry, Inertial, Joint, Link, RobotDescription, Shape, pose_from_xyz_rpy,
+};
 use crate::error::SimError;
 
 /// Parse a URDF document from a file.
@@ -46,14 +48,27 @@ pub fn parse_urdf(text: &str) -> Result<RobotDescription, SimError> {
         .collect();
     let root = match roots.as_slice() {
         [r] => *r,
-        _ => return Err(bad(format!("expected exactly one root link, found {}", roots.len()))),
+        _ => {
+            return Err(bad(format!(
+                "expected exactly one root link, found {}",
+                roots.len()
+            )));
+        }
     };
-    Ok(RobotDescription { name, links, joints, root })
+    Ok(RobotDescription {
+        name,
+        links,
+        joints,
+        root,
+    })
 }
 
 fn attr<'a>(node: roxmltree::Node<'a, '_>, name: &str) -> Result<&'a str, SimError> {
     node.attribute(name).ok_or_else(|| {
-        bad(format!("<{}> lacks the attribute `{name}`", node.tag_name().name()))
+        bad(format!(
+            "<{}> lacks the attribute `{name}`",
+            node.tag_name().name()
+        ))
     })
 }
 
@@ -82,8 +97,12 @@ fn parse_origin(node: roxmltree::Node, what: &str) -> Result<Pose, SimError> {
     match child(node, "origin") {
         None => Ok(Pose::IDENTITY),
         Some(o) => {
-            let xyz = o.attribute("xyz").map_or(Ok(Vec3::ZERO), |t| parse_vec3(t, what))?;
-            let rpy = o.attribute("rpy").map_or(Ok(Vec3::ZERO), |t| parse_vec3(t, what))?;
+            let xyz = o
+                .attribute("xyz")
+                .map_or(Ok(Vec3::ZERO), |t| parse_vec3(t, what))?;
+            let rpy = o
+                .attribute("rpy")
+                .map_or(Ok(Vec3::ZERO), |t| parse_vec3(t, what))?;
             Ok(pose_from_xyz_rpy(xyz, rpy))
         }
     }
@@ -93,7 +112,11 @@ fn parse_link(node: roxmltree::Node) -> Result<Link, SimError> {
     let name = attr(node, "name")?.to_string();
     let inertial = match child(node, "inertial") {
         Some(i) => parse_inertial(i, &name)?,
-        None => Inertial { mass: 0.0, com: Vec3::ZERO, inertia: Mat3::ZERO },
+        None => Inertial {
+            mass: 0.0,
+            com: Vec3::ZERO,
+            inertia: Mat3::ZERO,
+        },
     };
     let collisions = node
         .children()
@@ -105,16 +128,34 @@ fn parse_link(node: roxmltree::Node) -> Result<Link, SimError> {
         .filter(|n| n.has_tag_name("visual"))
         .map(|n| parse_geometry(n, &name))
         .collect::<Result<_, _>>()?;
-    Ok(Link { name, inertial, collisions, visuals })
+    Ok(Link {
+        name,
+        inertial,
+        collisions,
+        visuals,
+    })
 }
 
 fn parse_inertial(node: roxmltree::Node, link: &str) -> Result<Inertial, SimError> {
     let what = format!("link `{link}` inertial");
     let origin = parse_origin(node, &what)?;
-    let mass = parse_f32(attr(child(node, "mass").ok_or_else(|| bad(format!("{what}: no <mass>")))?, "value")?, &what)?;
+    let mass = parse_f32(
+        attr(
+            child(node, "mass").ok_or_else(|| bad(format!("{what}: no <mass>")))?,
+            "value",
+        )?,
+        &what,
+    )?;
     let i = child(node, "inertia").ok_or_else(|| bad(format!("{what}: no <inertia>")))?;
     let g = |k: &str| -> Result<f32, SimError> { parse_f32(attr(i, k)?, &what) };
-    let (ixx, ixy, ixz, iyy, iyz, izz) = (g("ixx")?, g("ixy")?, g("ixz")?, g("iyy")?, g("iyz")?, g("izz")?);
+    let (ixx, ixy, ixz, iyy, iyz, izz) = (
+        g("ixx")?,
+        g("ixy")?,
+        g("ixz")?,
+        g("iyy")?,
+        g("iyz")?,
+        g("izz")?,
+    );
     let local = Mat3::from_cols(
         Vec3::new(ixx, ixy, ixz),
         Vec3::new(ixy, iyy, iyz),
@@ -122,7 +163,11 @@ fn parse_inertial(node: roxmltree::Node, link: &str) -> Result<Inertial, SimErro
     );
     // URDF gives the tensor in the inertial frame; express it in the link frame's axes.
     let r = Mat3::from_quat(origin.rotation);
-    Ok(Inertial { mass, com: origin.translation, inertia: r * local * r.transpose() })
+    Ok(Inertial {
+        mass,
+        com: origin.translation,
+        inertia: r * local * r.transpose(),
+    })
 }
 
 fn parse_geometry(node: roxmltree::Node, link: &str) -> Result<Geometry, SimError> {
@@ -134,15 +179,27 @@ fn parse_geometry(node: roxmltree::Node, link: &str) -> Result<Geometry, SimErro
         .find(|n| n.is_element())
         .ok_or_else(|| bad(format!("{what}: empty <geometry>")))?;
     let shape = match shape_node.tag_name().name() {
-        "box" => Shape::Box { size: parse_vec3(attr(shape_node, "size")?, &what)? },
+        "box" => Shape::Box {
+            size: parse_vec3(attr(shape_node, "size")?, &what)?,
+        },
         "cylinder" => Shape::Cylinder {
             radius: parse_f32(attr(shape_node, "radius")?, &what)?,
             length: parse_f32(attr(shape_node, "length")?, &what)?,
         },
-        "sphere" => Shape::Sphere { radius: parse_f32(attr(shape_node, "radius")?, &what)? },
-        other => return Err(bad(format!("{what}: unsupported geometry <{other}> (primitives only)"))),
+        "sphere" => Shape::Sphere {
+            radius: parse_f32(attr(shape_node, "radius")?, &what)?,
+        },
+        other => {
+            return Err(bad(format!(
+                "{what}: unsupported geometry <{other}> (primitives only)"
+            )));
+        }
     };
-    Ok(Geometry { name: node.attribute("name").unwrap_or("").to_string(), origin, shape })
+    Ok(Geometry {
+        name: node.attribute("name").unwrap_or("").to_string(),
+        origin,
+        shape,
+    })
 }
 
 fn parse_joint(node: roxmltree::Node, links: &[Link]) -> Result<Joint, SimError> {
@@ -150,10 +207,15 @@ fn parse_joint(node: roxmltree::Node, links: &[Link]) -> Result<Joint, SimError>
     let what = format!("joint `{name}`");
     let kind = attr(node, "type")?;
     if kind != "revolute" {
-        return Err(bad(format!("{what}: type `{kind}` is not supported (revolute only)")));
+        return Err(bad(format!(
+            "{what}: type `{kind}` is not supported (revolute only)"
+        )));
     }
     let find = |tag: &str| -> Result<usize, SimError> {
-        let link = attr(child(node, tag).ok_or_else(|| bad(format!("{what}: no <{tag}>")))?, "link")?;
+        let link = attr(
+            child(node, tag).ok_or_else(|| bad(format!("{what}: no <{tag}>")))?,
+            "link",
+        )?;
         links
             .iter()
             .position(|l| l.name == link)
@@ -172,7 +234,9 @@ fn parse_joint(node: roxmltree::Node, links: &[Link]) -> Result<Joint, SimError>
     let lim = |k: &str| -> Result<f32, SimError> { parse_f32(attr(limit, k)?, &what) };
     let (lower, upper) = (lim("lower")?, lim("upper")?);
     if lower >= upper {
-        return Err(bad(format!("{what}: lower limit {lower} is not below upper limit {upper}")));
+        return Err(bad(format!(
+            "{what}: lower limit {lower} is not below upper limit {upper}"
+        )));
     }
     Ok(Joint {
         name,

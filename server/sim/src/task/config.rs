@@ -101,8 +101,16 @@ impl Default for CommandParams {
     fn default() -> Self {
         Self {
             resampling_time_s: 10.0,
-            quad: CommandRanges { vx: [-1.0, 1.5], vy: [-0.5, 0.5], wz: [-1.0, 1.0] },
-            biped: CommandRanges { vx: [-0.5, 0.5], vy: [-0.3, 0.3], wz: [-0.5, 0.5] },
+            quad: CommandRanges {
+                vx: [-1.0, 1.5],
+                vy: [-0.5, 0.5],
+                wz: [-1.0, 1.0],
+            },
+            biped: CommandRanges {
+                vx: [-0.5, 0.5],
+                vy: [-0.3, 0.3],
+                wz: [-0.5, 0.5],
+            },
             zero_below: 0.1,
         }
     }
@@ -120,7 +128,10 @@ pub struct ModeParams {
 
 impl Default for ModeParams {
     fn default() -> Self {
-        Self { resampling_time_s: 6.0, biped_probability: 0.5 }
+        Self {
+            resampling_time_s: 6.0,
+            biped_probability: 0.5,
+        }
     }
 }
 
@@ -358,20 +369,31 @@ pub struct NoiseParams {
 
 impl Default for NoiseParams {
     fn default() -> Self {
-        Self { enabled: true, level: 1.0 }
+        Self {
+            enabled: true,
+            level: 1.0,
+        }
     }
 }
 
 fn check_range(field: &str, r: Range, lo: f32, hi: f32) -> Result<(), SimError> {
     if !(r[0].is_finite() && r[1].is_finite() && r[0] <= r[1] && r[0] >= lo && r[1] <= hi) {
-        return Err(SimError::invalid(field, format!("{r:?}"), format!("need lo <= hi within [{lo}, {hi}]")));
+        return Err(SimError::invalid(
+            field,
+            format!("{r:?}"),
+            format!("need lo <= hi within [{lo}, {hi}]"),
+        ));
     }
     Ok(())
 }
 
 fn check(field: &str, v: f32, lo: f32, hi: f32) -> Result<(), SimError> {
     if !(v.is_finite() && v >= lo && v <= hi) {
-        return Err(SimError::invalid(field, v, format!("allowed range [{lo}, {hi}]")));
+        return Err(SimError::invalid(
+            field,
+            v,
+            format!("allowed range [{lo}, {hi}]"),
+        ));
     }
     Ok(())
 }
@@ -384,17 +406,22 @@ impl TaskConfig {
 
     /// Parse and validate a TOML document; missing fields keep their defaults.
     pub fn from_toml(text: &str) -> Result<Self, SimError> {
-        let config: Self = toml::from_str(text).map_err(|e| SimError::ConfigSyntax(e.to_string()))?;
+        let config: Self =
+            toml::from_str(text).map_err(|e| SimError::ConfigSyntax(e.to_string()))?;
         config.validate()?;
         Ok(config)
     }
 
     /// Apply a TOML override document on top of this config (keys not named keep their value).
     pub fn with_overrides(&self, text: &str) -> Result<Self, SimError> {
-        let mut base = toml::Value::try_from(self).map_err(|e| SimError::ConfigSyntax(e.to_string()))?;
-        let over: toml::Value = toml::from_str(text).map_err(|e| SimError::ConfigSyntax(e.to_string()))?;
+        let mut base =
+            toml::Value::try_from(self).map_err(|e| SimError::ConfigSyntax(e.to_string()))?;
+        let over: toml::Value =
+            toml::from_str(text).map_err(|e| SimError::ConfigSyntax(e.to_string()))?;
         merge(&mut base, over);
-        let config: Self = base.try_into().map_err(|e: toml::de::Error| SimError::ConfigSyntax(e.to_string()))?;
+        let config: Self = base
+            .try_into()
+            .map_err(|e: toml::de::Error| SimError::ConfigSyntax(e.to_string()))?;
         config.validate()?;
         Ok(config)
     }
@@ -404,37 +431,72 @@ impl TaskConfig {
         let p = &self.physics;
         check("physics.dt", p.dt, 1e-4, 0.02)?;
         if !(1..=64).contains(&p.solver_iterations) {
-            return Err(SimError::invalid("physics.solver_iterations", p.solver_iterations, "allowed range [1, 64]"));
+            return Err(SimError::invalid(
+                "physics.solver_iterations",
+                p.solver_iterations,
+                "allowed range [1, 64]",
+            ));
         }
         if !(1..=16).contains(&p.pgs_iterations) {
-            return Err(SimError::invalid("physics.pgs_iterations", p.pgs_iterations, "allowed range [1, 16]"));
+            return Err(SimError::invalid(
+                "physics.pgs_iterations",
+                p.pgs_iterations,
+                "allowed range [1, 16]",
+            ));
         }
         check("physics.gravity", p.gravity, 0.0, 100.0)?;
         if p.extra_iterations_on_leg_contact > 64 {
-            return Err(SimError::invalid("physics.extra_iterations_on_leg_contact", p.extra_iterations_on_leg_contact, "allowed range [0, 64]"));
+            return Err(SimError::invalid(
+                "physics.extra_iterations_on_leg_contact",
+                p.extra_iterations_on_leg_contact,
+                "allowed range [0, 64]",
+            ));
         }
         check("physics.min_link_inertia", p.min_link_inertia, 0.0, 1.0)?;
         let e = &self.env;
         check("env.episode_length_s", e.episode_length_s, 0.02, 3600.0)?;
         if !(1..=100).contains(&e.decimation) {
-            return Err(SimError::invalid("env.decimation", e.decimation, "allowed range [1, 100]"));
+            return Err(SimError::invalid(
+                "env.decimation",
+                e.decimation,
+                "allowed range [1, 100]",
+            ));
         }
         if !(1..=4096).contains(&e.envs_per_world) {
-            return Err(SimError::invalid("env.envs_per_world", e.envs_per_world, "allowed range [1, 4096]"));
+            return Err(SimError::invalid(
+                "env.envs_per_world",
+                e.envs_per_world,
+                "allowed range [1, 4096]",
+            ));
         }
         check("env.action_scale", e.action_scale, 0.0, 10.0)?;
         check("env.clip_actions", e.clip_actions, 0.0, 1e6)?;
         check("env.clip_observations", e.clip_observations, 0.0, 1e6)?;
         let c = &self.commands;
-        check("commands.resampling_time_s", c.resampling_time_s, 0.02, 3600.0)?;
+        check(
+            "commands.resampling_time_s",
+            c.resampling_time_s,
+            0.02,
+            3600.0,
+        )?;
         check("commands.zero_below", c.zero_below, 0.0, 10.0)?;
         for (mode, r) in [("quad", &c.quad), ("biped", &c.biped)] {
             check_range(&format!("commands.{mode}.vx"), r.vx, -10.0, 10.0)?;
             check_range(&format!("commands.{mode}.vy"), r.vy, -10.0, 10.0)?;
             check_range(&format!("commands.{mode}.wz"), r.wz, -10.0, 10.0)?;
         }
-        check("modes.resampling_time_s", self.modes.resampling_time_s, 0.02, 3600.0)?;
-        check("modes.biped_probability", self.modes.biped_probability, 0.0, 1.0)?;
+        check(
+            "modes.resampling_time_s",
+            self.modes.resampling_time_s,
+            0.02,
+            3600.0,
+        )?;
+        check(
+            "modes.biped_probability",
+            self.modes.biped_probability,
+            0.0,
+            1.0,
+        )?;
         let g = &self.gait;
         check("gait.period_s", g.period_s, 0.05, 10.0)?;
         check("gait.swing_ratio", g.swing_ratio, 0.0, 1.0)?;
@@ -462,17 +524,37 @@ impl TaskConfig {
         check_range("randomization.armature", r.armature, 0.0, 1.0)?;
         check_range("randomization.kp_factor", r.kp_factor, 0.0, 10.0)?;
         check_range("randomization.kd_factor", r.kd_factor, 0.0, 10.0)?;
-        check("randomization.push_interval_s", r.push_interval_s, 0.0, 3600.0)?;
+        check(
+            "randomization.push_interval_s",
+            r.push_interval_s,
+            0.0,
+            3600.0,
+        )?;
         check("randomization.push_velocity", r.push_velocity, 0.0, 10.0)?;
         let w = &self.rewards;
         for term in RewardTerm::ALL {
-            check(&format!("rewards.weights.{}", term.name()), w.weights.0[term as usize], -1e6, 1e6)?;
+            check(
+                &format!("rewards.weights.{}", term.name()),
+                w.weights.0[term as usize],
+                -1e6,
+                1e6,
+            )?;
         }
         check("rewards.base_height_quad", w.base_height_quad, 0.0, 2.0)?;
         check("rewards.base_height_biped", w.base_height_biped, 0.0, 2.0)?;
         check("rewards.upright_pitch", w.upright_pitch, 0.0, 1.6)?;
-        check("rewards.foot_clearance_target", w.foot_clearance_target, 0.0, 1.0)?;
-        check("rewards.foot_clearance_radius", w.foot_clearance_radius, 0.0, 0.5)?;
+        check(
+            "rewards.foot_clearance_target",
+            w.foot_clearance_target,
+            0.0,
+            1.0,
+        )?;
+        check(
+            "rewards.foot_clearance_radius",
+            w.foot_clearance_radius,
+            0.0,
+            0.5,
+        )?;
         check("rewards.soft_joint_limit", w.soft_joint_limit, 0.0, 1.0)?;
         check("rewards.contact_threshold", w.contact_threshold, 0.0, 1e4)?;
         check("noise.level", self.noise.level, 0.0, 100.0)?;
@@ -486,23 +568,30 @@ impl TaskConfig {
 
     /// Episode length in policy steps.
     pub fn max_episode_steps(&self) -> u32 {
-        (self.env.episode_length_s / self.policy_dt()).round().max(1.0) as u32
+        (self.env.episode_length_s / self.policy_dt())
+            .round()
+            .max(1.0) as u32
     }
 
     /// Policy steps between two draws of the task mode.
     pub fn mode_interval_steps(&self) -> u32 {
-        (self.modes.resampling_time_s / self.policy_dt()).round().max(1.0) as u32
+        (self.modes.resampling_time_s / self.policy_dt())
+            .round()
+            .max(1.0) as u32
     }
 
     /// Policy steps between two draws of the commands.
     pub fn command_interval_steps(&self) -> u32 {
-        (self.commands.resampling_time_s / self.policy_dt()).round().max(1.0) as u32
+        (self.commands.resampling_time_s / self.policy_dt())
+            .round()
+            .max(1.0) as u32
     }
 
     /// Policy steps between pushes (None: pushes off).
     pub fn push_interval_steps(&self) -> Option<u32> {
         let s = self.randomization.push_interval_s;
-        (s > 0.0 && self.randomization.enabled).then(|| (s / self.policy_dt()).round().max(1.0) as u32)
+        (s > 0.0 && self.randomization.enabled)
+            .then(|| (s / self.policy_dt()).round().max(1.0) as u32)
     }
 
     /// Effective reward weight of `term`: Table II weight times the policy dt.

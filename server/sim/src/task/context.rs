@@ -39,7 +39,8 @@ pub struct TaskContext {
 impl TaskContext {
     /// Derive everything from `config` and `model`.
     pub fn new(config: TaskConfig, model: &RobotModel) -> Self {
-        let default_q: [f32; NUM_JOINTS] = std::array::from_fn(|j| model.config.default_joint_pos[j]);
+        let default_q: [f32; NUM_JOINTS] =
+            std::array::from_fn(|j| model.config.default_joint_pos[j]);
         let k = config.rewards.soft_joint_limit;
         let soft = |j: usize, side: f32| {
             let joint = &model.joints[j];
@@ -58,7 +59,11 @@ impl TaskContext {
             raised_feet: [2, 3],
         };
         let scale = scales(&OBSERVATION);
-        let level = if config.noise.enabled { config.noise.level } else { 0.0 };
+        let level = if config.noise.enabled {
+            config.noise.level
+        } else {
+            0.0
+        };
         let noise = noise_amplitudes(&OBSERVATION, level);
         let collider_bounds = model
             .bodies

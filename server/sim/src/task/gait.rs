@@ -75,13 +75,22 @@ pub fn expected_indicators(cdf: &VonMisesCdf, phase: f32, swing_ratio: f32) -> (
 /// force weight is E[I_swing], in the stance window the speed weight is E[I_stance].
 pub fn gait_coefficients(cdf: &VonMisesCdf, phase: f32, swing_ratio: f32) -> GaitCoefficients {
     if swing_ratio <= 0.0 {
-        return GaitCoefficients { force: 0.0, speed: 1.0 };
+        return GaitCoefficients {
+            force: 0.0,
+            speed: 1.0,
+        };
     }
     let (swing, stance) = expected_indicators(cdf, phase, swing_ratio);
     if phase.rem_euclid(1.0) < swing_ratio {
-        GaitCoefficients { force: swing, speed: 1.0 - swing }
+        GaitCoefficients {
+            force: swing,
+            speed: 1.0 - swing,
+        }
     } else {
-        GaitCoefficients { force: 1.0 - stance, speed: stance }
+        GaitCoefficients {
+            force: 1.0 - stance,
+            speed: stance,
+        }
     }
 }
 
@@ -117,8 +126,16 @@ mod test {
             assert!((s - sw).abs() < 1e-4, "phase {phase}: E[I_sw] {s} vs {sw}");
             assert!((t - st).abs() < 1e-4, "phase {phase}: E[I_st] {t} vs {st}");
             let c = gait_coefficients(&cdf, phase, 0.4);
-            assert!((c.force - frc).abs() < 1e-4, "phase {phase}: force {} vs {frc}", c.force);
-            assert!((c.speed - spd).abs() < 1e-4, "phase {phase}: speed {} vs {spd}", c.speed);
+            assert!(
+                (c.force - frc).abs() < 1e-4,
+                "phase {phase}: force {} vs {frc}",
+                c.force
+            );
+            assert!(
+                (c.speed - spd).abs() < 1e-4,
+                "phase {phase}: speed {} vs {spd}",
+                c.speed
+            );
         }
     }
 

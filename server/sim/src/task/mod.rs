@@ -10,15 +10,16 @@ mod reward_terms;
 mod rewards;
 
 pub use config::{
-    BipedStance, CommandParams, CommandRanges, DEFAULT_TASK_TOML, EnvParams, GaitParams, InitParams, ModeParams,
-    NoiseParams, RandomizationParams, Range, RewardParams, RewardWeights, TaskConfig,
+    BipedStance, CommandParams, CommandRanges, DEFAULT_TASK_TOML, EnvParams, GaitParams,
+    InitParams, ModeParams, NoiseParams, RandomizationParams, Range, RewardParams, RewardWeights,
+    TaskConfig,
 };
 pub use context::TaskContext;
 pub use frames::{euler_pitch, heading_direction, projected_gravity, to_heading_frame};
 pub use gait::{GaitCoefficients, VonMisesCdf, expected_indicators, gait_coefficients};
 pub use observation::{
-    Field, LABEL_DIM, LABELS, OBS_DIM, OBSERVATION, PRIVILEGED, PRIVILEGED_DIM, noise_amplitudes, scales, slice_of,
-    table_dim,
+    Field, LABEL_DIM, LABELS, OBS_DIM, OBSERVATION, PRIVILEGED, PRIVILEGED_DIM, noise_amplitudes,
+    scales, slice_of, table_dim,
 };
 pub use randomization::{Randomization, uniform};
 pub use reward_terms::{Indicators, RewardTerm, TermGroup};

@@ -18,35 +18,161 @@ pub struct Field {
 
 /// The observation table, in order (53 values).
 pub const OBSERVATION: [Field; 9] = [
-    Field { name: "cmd", dim: 3, scale: &[2.0, 2.0, 0.25], noise: 0.0, doc: "commands vx, vy (heading frame, m/s), wz (rad/s)" },
-    Field { name: "phi", dim: 3, scale: &[1.0, 1.0, 1.0], noise: 0.05, doc: "orientation: gravity y in base frame (roll measure), Euler pitch (rad, + nose down), gravity z in base frame" },
-    Field { name: "omega", dim: 3, scale: &[0.25; 3], noise: 0.2, doc: "base angular velocity, base frame (rad/s)" },
-    Field { name: "q", dim: 12, scale: &[1.0; 12], noise: 0.01, doc: "joint angles minus defaults (rad)" },
-    Field { name: "qdot", dim: 12, scale: &[0.05; 12], noise: 1.5, doc: "joint speeds (rad/s)" },
-    Field { name: "last_action", dim: 12, scale: &[1.0; 12], noise: 0.0, doc: "previous action a_{t-1}" },
-    Field { name: "mode", dim: 2, scale: &[1.0; 2], noise: 0.0, doc: "one-hot task mode (biped, quad)" },
-    Field { name: "clock", dim: 4, scale: &[1.0; 4], noise: 0.0, doc: "sin(2 pi (Phi + theta_i)) per foot FL FR RL RR; rear 0 in biped mode" },
-    Field { name: "ratio", dim: 2, scale: &[1.0; 2], noise: 0.0, doc: "swing ratio, stance ratio" },
+    Field {
+        name: "cmd",
+        dim: 3,
+        scale: &[2.0, 2.0, 0.25],
+        noise: 0.0,
+        doc: "commands vx, vy (heading frame, m/s), wz (rad/s)",
+    },
+    Field {
+        name: "phi",
+        dim: 3,
+        scale: &[1.0, 1.0, 1.0],
+        noise: 0.05,
+        doc: "orientation: gravity y in base frame (roll measure), Euler pitch (rad, + nose down), gravity z in base frame",
+    },
+    Field {
+        name: "omega",
+        dim: 3,
+        scale: &[0.25; 3],
+        noise: 0.2,
+        doc: "base angular velocity, base frame (rad/s)",
+    },
+    Field {
+        name: "q",
+        dim: 12,
+        scale: &[1.0; 12],
+        noise: 0.01,
+        doc: "joint angles minus defaults (rad)",
+    },
+    Field {
+        name: "qdot",
+        dim: 12,
+        scale: &[0.05; 12],
+        noise: 1.5,
+        doc: "joint speeds (rad/s)",
+    },
+    Field {
+        name: "last_action",
+        dim: 12,
+        scale: &[1.0; 12],
+        noise: 0.0,
+        doc: "previous action a_{t-1}",
+    },
+    Field {
+        name: "mode",
+        dim: 2,
+        scale: &[1.0; 2],
+        noise: 0.0,
+        doc: "one-hot task mode (biped, quad)",
+    },
+    Field {
+        name: "clock",
+        dim: 4,
+        scale: &[1.0; 4],
+        noise: 0.0,
+        doc: "sin(2 pi (Phi + theta_i)) per foot FL FR RL RR; rear 0 in biped mode",
+    },
+    Field {
+        name: "ratio",
+        dim: 2,
+        scale: &[1.0; 2],
+        noise: 0.0,
+        doc: "swing ratio, stance ratio",
+    },
 ];
 
 /// The estimator labels e_t (14 values, SI units, unscaled).
 pub const LABELS: [Field; 4] = [
-    Field { name: "base_lin_vel", dim: 3, scale: &[1.0; 3], noise: 0.0, doc: "base linear velocity, base frame (m/s)" },
-    Field { name: "foot_contact", dim: 4, scale: &[1.0; 4], noise: 0.0, doc: "1 if the foot's contact force > 1 N, FL FR RL RR" },
-    Field { name: "terrain_normal", dim: 3, scale: &[1.0; 3], noise: 0.0, doc: "terrain normal under the base, base frame" },
-    Field { name: "foot_height", dim: 4, scale: &[1.0; 4], noise: 0.0, doc: "foot sole height above the terrain (m)" },
+    Field {
+        name: "base_lin_vel",
+        dim: 3,
+        scale: &[1.0; 3],
+        noise: 0.0,
+        doc: "base linear velocity, base frame (m/s)",
+    },
+    Field {
+        name: "foot_contact",
+        dim: 4,
+        scale: &[1.0; 4],
+        noise: 0.0,
+        doc: "1 if the foot's contact force > 1 N, FL FR RL RR",
+    },
+    Field {
+        name: "terrain_normal",
+        dim: 3,
+        scale: &[1.0; 3],
+        noise: 0.0,
+        doc: "terrain normal under the base, base frame",
+    },
+    Field {
+        name: "foot_height",
+        dim: 4,
+        scale: &[1.0; 4],
+        noise: 0.0,
+        doc: "foot sole height above the terrain (m)",
+    },
 ];
 
 /// The privileged critic extras s_t: the env's randomised physical values (10).
 pub const PRIVILEGED: [Field; 8] = [
-    Field { name: "friction", dim: 1, scale: &[1.0], noise: 0.0, doc: "robot-terrain friction coefficient" },
-    Field { name: "payload", dim: 1, scale: &[1.0], noise: 0.0, doc: "payload on the trunk (kg)" },
-    Field { name: "com_offset", dim: 3, scale: &[1.0; 3], noise: 0.0, doc: "trunk centre-of-mass shift (m)" },
-    Field { name: "joint_damping", dim: 1, scale: &[1.0], noise: 0.0, doc: "joint viscous damping (N m s/rad)" },
-    Field { name: "joint_friction", dim: 1, scale: &[1.0], noise: 0.0, doc: "joint Coulomb friction (N m)" },
-    Field { name: "armature", dim: 1, scale: &[1.0], noise: 0.0, doc: "rotor inertia per joint (kg m^2)" },
-    Field { name: "kp_factor", dim: 1, scale: &[1.0], noise: 0.0, doc: "factor on kp" },
-    Field { name: "kd_factor", dim: 1, scale: &[1.0], noise: 0.0, doc: "factor on kd" },
+    Field {
+        name: "friction",
+        dim: 1,
+        scale: &[1.0],
+        noise: 0.0,
+        doc: "robot-terrain friction coefficient",
+    },
+    Field {
+        name: "payload",
+        dim: 1,
+        scale: &[1.0],
+        noise: 0.0,
+        doc: "payload on the trunk (kg)",
+    },
+    Field {
+        name: "com_offset",
+        dim: 3,
+        scale: &[1.0; 3],
+        noise: 0.0,
+        doc: "trunk centre-of-mass shift (m)",
+    },
+    Field {
+        name: "joint_damping",
+        dim: 1,
+        scale: &[1.0],
+        noise: 0.0,
+        doc: "joint viscous damping (N m s/rad)",
+    },
+    Field {
+        name: "joint_friction",
+        dim: 1,
+        scale: &[1.0],
+        noise: 0.0,
+        doc: "joint Coulomb friction (N m)",
+    },
+    Field {
+        name: "armature",
+        dim: 1,
+        scale: &[1.0],
+        noise: 0.0,
+        doc: "rotor inertia per joint (kg m^2)",
+    },
+    Field {
+        name: "kp_factor",
+        dim: 1,
+        scale: &[1.0],
+        noise: 0.0,
+        doc: "factor on kp",
+    },
+    Field {
+        name: "kd_factor",
+        dim: 1,
+        scale: &[1.0],
+        noise: 0.0,
+        doc: "factor on kd",
+    },
 ];
 
 /// Total size of a table.
@@ -86,7 +212,10 @@ pub fn scales(table: &[Field]) -> Vec<f32> {
 
 /// Per-value noise amplitudes (after scaling) of a table, flattened.
 pub fn noise_amplitudes(table: &[Field], level: f32) -> Vec<f32> {
-    table.iter().flat_map(|f| f.scale.iter().map(move |s| s * f.noise * level)).collect()
+    table
+        .iter()
+        .flat_map(|f| f.scale.iter().map(move |s| s * f.noise * level))
+        .collect()
 }
 
 #[cfg(test)]

@@ -3,7 +3,7 @@
 use rand::{Rng, RngExt};
 use rapier3d::math::Vec3;
 
-use super::config::{Range, RandomizationParams};
+use super::config::{RandomizationParams, Range};
 use crate::physics::{ActuatorParams, RobotPhysicalParams};
 use crate::robot::RobotConfig;
 
@@ -30,7 +30,11 @@ pub struct Randomization {
 
 /// Uniform draw from a closed range.
 pub fn uniform(rng: &mut impl Rng, r: Range) -> f32 {
-    if r[1] > r[0] { rng.random_range(r[0]..=r[1]) } else { r[0] }
+    if r[1] > r[0] {
+        rng.random_range(r[0]..=r[1])
+    } else {
+        r[0]
+    }
 }
 
 impl Randomization {

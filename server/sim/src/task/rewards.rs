@@ -117,7 +117,11 @@ pub fn cost_action_rate(a: &[f32; NUM_JOINTS], a1: &[f32; NUM_JOINTS]) -> f32 {
 }
 
 /// |a_t - 2 a_{t-1} + a_{t-2}|^2.
-pub fn cost_action_smoothness(a: &[f32; NUM_JOINTS], a1: &[f32; NUM_JOINTS], a2: &[f32; NUM_JOINTS]) -> f32 {
+pub fn cost_action_smoothness(
+    a: &[f32; NUM_JOINTS],
+    a1: &[f32; NUM_JOINTS],
+    a2: &[f32; NUM_JOINTS],
+) -> f32 {
     sq_sum((0..NUM_JOINTS).map(|i| a[i] - 2.0 * a1[i] + a2[i]))
 }
 
@@ -127,13 +131,23 @@ pub fn cost_torques(tau: &[f32; NUM_JOINTS]) -> f32 {
 }
 
 /// |q_hip - q0_hip|^2: hips kept at their default abduction.
-pub fn cost_hip_pos(q: &[f32; NUM_JOINTS], q0: &[f32; NUM_JOINTS], hips: &[usize; NUM_FEET]) -> f32 {
+pub fn cost_hip_pos(
+    q: &[f32; NUM_JOINTS],
+    q0: &[f32; NUM_JOINTS],
+    hips: &[usize; NUM_FEET],
+) -> f32 {
     sq_sum(hips.iter().map(|&i| q[i] - q0[i]))
 }
 
 /// Number of joints outside their soft limits.
-pub fn cost_dof_pos_limits(q: &[f32; NUM_JOINTS], lo: &[f32; NUM_JOINTS], hi: &[f32; NUM_JOINTS]) -> f32 {
-    (0..NUM_JOINTS).filter(|&i| q[i] < lo[i] || q[i] > hi[i]).count() as f32
+pub fn cost_dof_pos_limits(
+    q: &[f32; NUM_JOINTS],
+    lo: &[f32; NUM_JOINTS],
+    hi: &[f32; NUM_JOINTS],
+) -> f32 {
+    (0..NUM_JOINTS)
+        .filter(|&i| q[i] < lo[i] || q[i] > hi[i])
+        .count() as f32
 }
 
 /// exp(-4 |v*_xy - v_xy|^2), in the heading frame.
@@ -171,7 +185,9 @@ pub fn gait_violation(
     speed_scale: f32,
 ) -> f32 {
     feet.iter()
-        .map(|&f| coeffs[f].force * force[f] / force_scale + coeffs[f].speed * speed[f] / speed_scale)
+        .map(|&f| {
+            coeffs[f].force * force[f] / force_scale + coeffs[f].speed * speed[f] / speed_scale
+        })
         .sum()
 }
 
@@ -182,8 +198,15 @@ pub fn reward_periodic_gait(violation: f32) -> f32 {
 
 /// Clearance error sum over `feet` of (h_i - target)^2 |v_xy,i| (Eq. 4, heights already measured
 /// from the highest terrain around each foot).
-pub fn foot_clearance_error(height: &[f32; NUM_FEET], speed_xy: &[f32; NUM_FEET], target: f32, feet: &[usize]) -> f32 {
-    feet.iter().map(|&f| (height[f] - target).powi(2) * speed_xy[f]).sum()
+pub fn foot_clearance_error(
+    height: &[f32; NUM_FEET],
+    speed_xy: &[f32; NUM_FEET],
+    target: f32,
+    feet: &[usize],
+) -> f32 {
+    feet.iter()
+        .map(|&f| (height[f] - target).powi(2) * speed_xy[f])
+        .sum()
 }
 
 /// exp(-100 error).
@@ -199,18 +222,28 @@ pub fn reward_biped_base_angle(target: [f32; 2], roll_proxy: f32, pitch: f32) ->
 /// |q_left - mirror(q_right)|^2 of the raised legs: hips mirror (opposite sign), thighs and
 /// calves equal, so a symmetric pose costs 0.
 pub fn cost_biped_rear_legs(q: &[f32; NUM_JOINTS], left: &[usize; 3], right: &[usize; 3]) -> f32 {
-    (q[left[0]] + q[right[0]]).powi(2) + (q[left[1]] - q[right[1]]).powi(2) + (q[left[2]] - q[right[2]]).powi(2)
+    (q[left[0]] + q[right[0]]).powi(2)
+        + (q[left[1]] - q[right[1]]).powi(2)
+        + (q[left[2]] - q[right[2]]).powi(2)
 }
 
 /// 1 when a stance foot touches the ground and no raised foot does.
-pub fn reward_upright_contacts(contact: &[bool; NUM_FEET], stance: &[usize; 2], raised: &[usize; 2]) -> f32 {
+pub fn reward_upright_contacts(
+    contact: &[bool; NUM_FEET],
+    stance: &[usize; 2],
+    raised: &[usize; 2],
+) -> f32 {
     let stance_down = stance.iter().any(|&f| contact[f]);
     let raised_up = raised.iter().all(|&f| !contact[f]);
     f32::from(u8::from(stance_down && raised_up))
 }
 
 /// Unweighted, unmasked value of every term.
-pub fn raw_terms(x: &RewardInputs, k: &RewardConstants, cfg: &TaskConfig) -> [f32; RewardTerm::COUNT] {
+pub fn raw_terms(
+    x: &RewardInputs,
+    k: &RewardConstants,
+    cfg: &TaskConfig,
+) -> [f32; RewardTerm::COUNT] {
     let r = &cfg.rewards;
     let g = &cfg.gait;
     let dt = cfg.policy_dt();
@@ -226,7 +259,9 @@ pub fn raw_terms(x: &RewardInputs, k: &RewardConstants, cfg: &TaskConfig) -> [f3
             RewardTerm::DofVel => cost_dof_vel(&x.qd),
             RewardTerm::DofAcc => cost_dof_acc(&x.qd, &x.qd_prev, dt),
             RewardTerm::ActionRate => cost_action_rate(&x.actions[0], &x.actions[1]),
-            RewardTerm::ActionSmoothness => cost_action_smoothness(&x.actions[0], &x.actions[1], &x.actions[2]),
+            RewardTerm::ActionSmoothness => {
+                cost_action_smoothness(&x.actions[0], &x.actions[1], &x.actions[2])
+            }
             RewardTerm::Torques => cost_torques(&x.torques),
             RewardTerm::HipPos => cost_hip_pos(&x.q, &k.default_q, &k.hips),
             RewardTerm::DofPosLimits => cost_dof_pos_limits(&x.q, &k.soft_lower, &k.soft_upper),
@@ -240,21 +275,43 @@ pub fn raw_terms(x: &RewardInputs, k: &RewardConstants, cfg: &TaskConfig) -> [f3
             RewardTerm::QuadBaseAngle => reward_quad_base_angle(x.terrain_normal_b),
             RewardTerm::QuadLinVelZ => cost_lin_vel_z(x.base_linvel_b.z),
             RewardTerm::QuadPeriodicGait => reward_periodic_gait(gait_violation(
-                &x.gait_quad, &x.foot_force, &x.foot_speed, &all_feet, g.force_scale, g.speed_scale,
+                &x.gait_quad,
+                &x.foot_force,
+                &x.foot_speed,
+                &all_feet,
+                g.force_scale,
+                g.speed_scale,
             )),
             RewardTerm::QuadFootClearance => reward_foot_clearance(foot_clearance_error(
-                &x.foot_clearance_height, &x.foot_speed_xy, r.foot_clearance_target, &all_feet,
+                &x.foot_clearance_height,
+                &x.foot_speed_xy,
+                r.foot_clearance_target,
+                &all_feet,
             )),
             RewardTerm::BipedBaseHeight => reward_base_height(r.base_height_biped, x.base_height),
-            RewardTerm::BipedBaseAngle => reward_biped_base_angle(r.biped_angle_target, x.roll_proxy, x.pitch),
+            RewardTerm::BipedBaseAngle => {
+                reward_biped_base_angle(r.biped_angle_target, x.roll_proxy, x.pitch)
+            }
             RewardTerm::BipedPeriodicGait => reward_periodic_gait(gait_violation(
-                &x.gait_biped, &x.foot_force, &x.foot_speed, &k.stance_feet, g.force_scale, g.speed_scale,
+                &x.gait_biped,
+                &x.foot_force,
+                &x.foot_speed,
+                &k.stance_feet,
+                g.force_scale,
+                g.speed_scale,
             )),
             RewardTerm::BipedFootClearance => reward_foot_clearance(foot_clearance_error(
-                &x.foot_clearance_height, &x.foot_speed_xy, r.foot_clearance_target, &k.stance_feet,
+                &x.foot_clearance_height,
+                &x.foot_speed_xy,
+                r.foot_clearance_target,
+                &k.stance_feet,
             )),
-            RewardTerm::BipedRearLegs => cost_biped_rear_legs(&x.q, &k.raised_left, &k.raised_right),
-            RewardTerm::BipedUprightContacts => reward_upright_contacts(&contact, &k.stance_feet, &k.raised_feet),
+            RewardTerm::BipedRearLegs => {
+                cost_biped_rear_legs(&x.q, &k.raised_left, &k.raised_right)
+            }
+            RewardTerm::BipedUprightContacts => {
+                reward_upright_contacts(&contact, &k.stance_feet, &k.raised_feet)
+            }
         };
     }
     v
@@ -268,8 +325,16 @@ pub fn indicators(biped: bool, pitch: f32, cfg: &TaskConfig) -> Indicators {
     } else {
         (1.0, 1.0)
     };
-    let up = if r.upright_indicator { f32::from(u8::from(pitch > r.upright_pitch)) } else { 1.0 };
-    Indicators { biped: i1, quad: i2, upright: up }
+    let up = if r.upright_indicator {
+        f32::from(u8::from(pitch > r.upright_pitch))
+    } else {
+        1.0
+    };
+    Indicators {
+        biped: i1,
+        quad: i2,
+        upright: up,
+    }
 }
 
 /// Weighted, masked terms (weight * dt * mask * raw) into `terms`; returns the total reward:

@@ -2,6 +2,8 @@
 
 use rapier3d::math::{Vec2, Vec3};
 
+use std::f32::consts::FRAC_PI_2;
+
 use super::*;
 use crate::task::gait::{VonMisesCdf, gait_coefficients};
 use crate::task::reward_terms::TermGroup;
@@ -47,7 +49,9 @@ fn common_costs() {
 
 #[test]
 fn hip_position_and_limits() {
-    let q0 = [0.1, 0.8, -1.5, -0.1, 0.8, -1.5, 0.1, 1.0, -1.5, -0.1, 1.0, -1.5];
+    let q0 = [
+        0.1, 0.8, -1.5, -0.1, 0.8, -1.5, 0.1, 1.0, -1.5, -0.1, 1.0, -1.5,
+    ];
     let mut q = q0;
     q[0] = 0.3; // +0.2
     q[9] = -0.4; // -0.3
@@ -64,36 +68,74 @@ fn hip_position_and_limits() {
 #[test]
 fn tracking_and_posture_rewards() {
     // |(1, 0) - (0.5, 0.5)|^2 = 0.5 -> exp(-2).
-    close(reward_tracking_lin_vel([1.0, 0.0], Vec2::new(0.5, 0.5)), (-2.0f32).exp());
+    close(
+        reward_tracking_lin_vel([1.0, 0.0], Vec2::new(0.5, 0.5)),
+        (-2.0f32).exp(),
+    );
     close(reward_tracking_ang_vel(0.5, 0.0), (-1.0f32).exp());
     // (0.3 - 0.2)^2 = 0.01 -> exp(-0.02).
     close(reward_base_height(0.3, 0.2), (-0.02f32).exp());
     // Tilted normal (0.3, 0.4, .) -> exp(-10 * 0.25).
-    close(reward_quad_base_angle(Vec3::new(0.3, 0.4, 0.866)), (-2.5f32).exp());
+    close(
+        reward_quad_base_angle(Vec3::new(0.3, 0.4, 0.866)),
+        (-2.5f32).exp(),
+    );
     close(cost_lin_vel_z(-0.5), 0.25);
     // Upright biped at target: 1; off by 0.5 rad in pitch: exp(-0.5).
-    close(reward_biped_base_angle([0.0, 1.5707964], 0.0, 1.5707964), 1.0);
-    close(reward_biped_base_angle([0.0, 1.5707964], 0.0, 1.0707964), (-0.5f32).exp());
+    close(
+        reward_biped_base_angle([0.0, FRAC_PI_2], 0.0, FRAC_PI_2),
+        1.0,
+    );
+    close(
+        reward_biped_base_angle([0.0, FRAC_PI_2], 0.0, FRAC_PI_2 - 0.5),
+        (-0.5f32).exp(),
+    );
 }
 
 #[test]
 fn gait_and_clearance() {
     let coeffs = [
-        GaitCoefficients { force: 1.0, speed: 0.0 },
-        GaitCoefficients { force: 0.0, speed: 1.0 },
-        GaitCoefficients { force: 0.5, speed: 0.5 },
-        GaitCoefficients { force: 0.0, speed: 1.0 },
+        GaitCoefficients {
+            force: 1.0,
+            speed: 0.0,
+        },
+        GaitCoefficients {
+            force: 0.0,
+            speed: 1.0,
+        },
+        GaitCoefficients {
+            force: 0.5,
+            speed: 0.5,
+        },
+        GaitCoefficients {
+            force: 0.0,
+            speed: 1.0,
+        },
     ];
     let force = [50.0, 100.0, 20.0, 0.0];
     let speed = [2.0, 0.5, 1.0, 3.0];
     // FL: 1 * 50/100 = 0.5; FR: 0.5/1 = 0.5; RL: 0.5*0.2 + 0.5*1 = 0.6; RR: 3.
-    close(gait_violation(&coeffs, &force, &speed, &[0, 1, 2, 3], 100.0, 1.0), 4.6);
-    close(gait_violation(&coeffs, &force, &speed, &[0, 1], 100.0, 1.0), 1.0);
+    close(
+        gait_violation(&coeffs, &force, &speed, &[0, 1, 2, 3], 100.0, 1.0),
+        4.6,
+    );
+    close(
+        gait_violation(&coeffs, &force, &speed, &[0, 1], 100.0, 1.0),
+        1.0,
+    );
     close(reward_periodic_gait(1.0), (-2.0f32).exp());
     // A perfect trot instant: swing feet in the air, stance feet still.
     let cdf = VonMisesCdf::new(20.0);
-    let c: [GaitCoefficients; 4] = std::array::from_fn(|f| gait_coefficients(&cdf, 0.2 + [0.0, 0.5, 0.5, 0.0][f], 0.4));
-    let e = gait_violation(&c, &[0.0, 70.0, 70.0, 0.0], &[1.5, 0.0, 0.0, 1.5], &[0, 1, 2, 3], 100.0, 1.0);
+    let c: [GaitCoefficients; 4] =
+        std::array::from_fn(|f| gait_coefficients(&cdf, 0.2 + [0.0, 0.5, 0.5, 0.0][f], 0.4));
+    let e = gait_violation(
+        &c,
+        &[0.0, 70.0, 70.0, 0.0],
+        &[1.5, 0.0, 0.0, 1.5],
+        &[0, 1, 2, 3],
+        100.0,
+        1.0,
+    );
     assert!(e < 1e-3, "{e}");
     // Heights 0.08 (on target) and 0.0 moving at 2 m/s: (0.08)^2 * 2 = 0.0128.
     let h = [0.08, 0.0, 0.5, 0.5];
@@ -115,10 +157,22 @@ fn biped_terms() {
     close(cost_biped_rear_legs(&q, &[6, 7, 8], &[9, 10, 11]), 0.0);
     q[10] = 1.5;
     q[9] = 0.1;
-    close(cost_biped_rear_legs(&q, &[6, 7, 8], &[9, 10, 11]), 0.04 + 0.25);
-    close(reward_upright_contacts(&[true, false, false, false], &[0, 1], &[2, 3]), 1.0);
-    close(reward_upright_contacts(&[true, true, true, false], &[0, 1], &[2, 3]), 0.0);
-    close(reward_upright_contacts(&[false, false, false, false], &[0, 1], &[2, 3]), 0.0);
+    close(
+        cost_biped_rear_legs(&q, &[6, 7, 8], &[9, 10, 11]),
+        0.04 + 0.25,
+    );
+    close(
+        reward_upright_contacts(&[true, false, false, false], &[0, 1], &[2, 3]),
+        1.0,
+    );
+    close(
+        reward_upright_contacts(&[true, true, true, false], &[0, 1], &[2, 3]),
+        0.0,
+    );
+    close(
+        reward_upright_contacts(&[false, false, false, false], &[0, 1], &[2, 3]),
+        0.0,
+    );
 }
 
 #[test]
@@ -161,14 +215,24 @@ fn masks_indicators_and_ablations() {
     weigh_terms(&raw, &indicators(true, 0.5, &no_up), &no_up, &mut without);
     for t in RewardTerm::ALL {
         let changed = with[t as usize] != without[t as usize];
-        assert_eq!(changed, t.group() == TermGroup::BipedUpright, "{}", t.name());
+        assert_eq!(
+            changed,
+            t.group() == TermGroup::BipedUpright,
+            "{}",
+            t.name()
+        );
     }
     // "No task indicator": in quad mode the biped terms turn on (the gated ones still need
     // the pitch), the quad and common terms stay.
     let mut no_task = cfg.clone();
     no_task.rewards.task_indicators = false;
     weigh_terms(&raw, &indicators(false, 1.5, &cfg), &cfg, &mut with);
-    weigh_terms(&raw, &indicators(false, 1.5, &no_task), &no_task, &mut without);
+    weigh_terms(
+        &raw,
+        &indicators(false, 1.5, &no_task),
+        &no_task,
+        &mut without,
+    );
     for t in RewardTerm::ALL {
         let changed = with[t as usize] != without[t as usize];
         let biped = matches!(t.group(), TermGroup::Biped | TermGroup::BipedUpright);

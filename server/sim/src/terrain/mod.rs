@@ -1,7 +1,7 @@
 //! Terrains: the shape robots walk on, its rapier collider, and fast height queries.
 
-use rapier3d::prelude::{ColliderBuilder, SharedShape};
 use rapier3d::math::Vec3;
+use rapier3d::prelude::{ColliderBuilder, SharedShape};
 
 /// A terrain shared by every robot of a world.
 #[derive(Clone, Debug, PartialEq)]
@@ -57,6 +57,9 @@ impl Terrain {
     pub fn env_origin(&self, index: usize, count: usize) -> (f32, f32) {
         let cols = (count as f32).sqrt().ceil().max(1.0) as usize;
         let spacing = 3.0;
-        ((index % cols) as f32 * spacing, (index / cols) as f32 * spacing)
+        (
+            (index % cols) as f32 * spacing,
+            (index / cols) as f32 * spacing,
+        )
     }
 }
