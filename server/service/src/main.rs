@@ -1,9 +1,12 @@
-//! `unigait-server`: the unigait service binary.
+//! `unigait-server`: serve batched Go2 envs over gRPC, or benchmark the core in process.
 
-mod bench;
+use std::net::SocketAddr;
+use std::path::PathBuf;
 
-use anyhow::Result;
+use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
+use unigait_server::{Limits, ServeOptions, bench, is_loopback, serve, shutdown_signal};
+use unigait_sim::task::TaskConfig;
 
 /// The unigait simulation service.
 #[derive(Debug, Parser)]
@@ -15,8 +18,101 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
+    /// Serve the Simulator gRPC service.
+    Serve(ServeArgs),
     /// Measure env steps per second of the simulation core, in process.
     Bench(bench::BenchArgs),
+}
+
+#[derive(Debug, clap::Args)]
+struct ServeArgs {
+    /// Address to bind. Port 0 picks a free port (printed on stdout).
+    #[arg(long, default_value = "127.0.0.1:50051")]
+    addr: SocketAddr,
+    /// Allow an address beyond loopback (then --tls-cert, --tls-key and --token-file are required).
+    #[arg(long)]
+    allow_remote: bool,
+    /// TLS certificate (PEM).
+    #[arg(long)]
+    tls_cert: Option<PathBuf>,
+    /// TLS private key (PEM).
+    #[arg(long)]
+    tls_key: Option<PathBuf>,
+    /// File holding the bearer token clients must send.
+    #[arg(long)]
+    token_file: Option<PathBuf>,
+    /// Task config (TOML) sessions start from; default: the embedded assets/task.toml.
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Env worker threads (0 = one per core).
+    #[arg(long, default_value_t = 0)]
+    threads: usize,
+    /// Largest number of envs in one session.
+    #[arg(long, default_value_t = Limits::default().max_envs_per_session)]
+    max_envs: usize,
+    /// Largest number of concurrent sessions.
+    #[arg(long, default_value_t = Limits::default().max_sessions)]
+    max_sessions: usize,
+    /// Seconds an unused session lives.
+    #[arg(long, default_value_t = Limits::default().idle_timeout_s)]
+    idle_timeout: u64,
+}
+
+fn read(path: &PathBuf) -> Result<Vec<u8>> {
+    std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))
+}
+
+async fn run_serve(args: ServeArgs) -> Result<()> {
+    let remote = !is_loopback(&args.addr);
+    if remote && !args.allow_remote {
+        bail!(
+            "{} is not a loopback address; pass --allow-remote (with TLS and a token) to serve beyond this machine",
+            args.addr
+        );
+    }
+    let tls = match (&args.tls_cert, &args.tls_key) {
+        (Some(c), Some(k)) => Some((read(c)?, read(k)?)),
+        (None, None) => None,
+        _ => bail!("--tls-cert and --tls-key go together"),
+    };
+    let token = match &args.token_file {
+        Some(p) => Some(
+            String::from_utf8(read(p)?)
+                .context("the token file is not UTF-8")?
+                .trim()
+                .to_string(),
+        ),
+        None => None,
+    };
+    if remote && (tls.is_none() || token.is_none()) {
+        bail!("serving beyond loopback needs --tls-cert, --tls-key and --token-file");
+    }
+    let base_config = match &args.config {
+        Some(p) => {
+            TaskConfig::from_toml(&String::from_utf8(read(p)?).context("the config is not UTF-8")?)?
+        }
+        None => TaskConfig::embedded_default(),
+    };
+    let options = ServeOptions {
+        limits: Limits {
+            max_envs_per_session: args.max_envs,
+            max_sessions: args.max_sessions,
+            idle_timeout_s: args.idle_timeout,
+        },
+        threads: args.threads,
+        base_config,
+        tls,
+        token,
+    };
+    let listener = tokio::net::TcpListener::bind(args.addr)
+        .await
+        .with_context(|| format!("cannot bind {}", args.addr))?;
+    let local = listener.local_addr()?;
+    // Scripts and tests wait for this line.
+    println!("listening on {local}");
+    tracing::info!(%local, threads = options.threads, "serving");
+    serve(listener, options, shutdown_signal()).await?;
+    Ok(())
 }
 
 fn main() -> Result<()> {
@@ -27,6 +123,13 @@ fn main() -> Result<()> {
         .with_writer(std::io::stderr)
         .init();
     match Cli::parse().command {
+        Command::Serve(args) => {
+            let runtime = tokio::runtime::Builder::new_multi_thread()
+                .worker_threads(2)
+                .enable_all()
+                .build()?;
+            runtime.block_on(run_serve(args))
+        }
         Command::Bench(args) => {
             let report = bench::run(&args)?;
             if args.json {
@@ -34,7 +137,7 @@ fn main() -> Result<()> {
             } else {
                 println!("{}", serde_json::to_string_pretty(&report)?);
             }
+            Ok(())
         }
     }
-    Ok(())
 }

@@ -3,11 +3,13 @@
 mod env_id;
 mod env_state;
 mod group;
+mod layout;
 mod output;
 mod vec_env;
 
 pub use env_id::EnvId;
 pub use env_state::{EnvState, sample_command};
 pub use group::{StageTimes, write_labels, write_observation};
+pub use layout::{ElementType, SliceLayout, TensorLayout, tensor_layouts};
 pub use output::{OutputChunk, StepOutput};
-pub use vec_env::{VecEnv, VecEnvOptions, validate_actions};
+pub use vec_env::{VecEnv, VecEnvOptions, validate_actions, worker_pool};

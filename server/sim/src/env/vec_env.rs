@@ -46,9 +46,19 @@ pub struct VecEnv {
     ctx: Arc<TaskContext>,
     terrain: Arc<Terrain>,
     groups: Vec<EnvGroup>,
-    pool: rayon::ThreadPool,
+    pool: Arc<rayon::ThreadPool>,
     out: StepOutput,
     options: VecEnvOptions,
+}
+
+/// A pool of `threads` env worker threads (0 = one per core).
+pub fn worker_pool(threads: usize) -> Result<Arc<rayon::ThreadPool>, SimError> {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .thread_name(|i| format!("unigait-env-{i}"))
+        .build()
+        .map(Arc::new)
+        .map_err(|e| SimError::invalid("threads", threads, e.to_string()))
 }
 
 /// Check an action tensor: `num_envs * 12` finite values.
@@ -74,22 +84,30 @@ pub fn validate_actions(actions: &[f32], num_envs: usize) -> Result<(), SimError
 }
 
 impl VecEnv {
-    /// Build and reset a batch.
+    /// Build and reset a batch with its own pool of `options.threads` worker threads.
     pub fn new(
         model: Arc<RobotModel>,
         config: TaskConfig,
         terrain: Arc<Terrain>,
         options: VecEnvOptions,
     ) -> Result<Self, SimError> {
+        let pool = worker_pool(options.threads)?;
+        Self::with_pool(model, config, terrain, options, pool)
+    }
+
+    /// Build and reset a batch that steps on a shared worker pool (`options.threads` is
+    /// ignored). A server shares one pool between its sessions.
+    pub fn with_pool(
+        model: Arc<RobotModel>,
+        config: TaskConfig,
+        terrain: Arc<Terrain>,
+        options: VecEnvOptions,
+        pool: Arc<rayon::ThreadPool>,
+    ) -> Result<Self, SimError> {
         config.validate()?;
         if options.num_envs == 0 {
             return Err(SimError::invalid("num_envs", 0, "at least 1"));
         }
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(options.threads)
-            .thread_name(|i| format!("unigait-env-{i}"))
-            .build()
-            .map_err(|e| SimError::invalid("threads", options.threads, e.to_string()))?;
         let ctx = Arc::new(TaskContext::new(config, &model));
         let epw = ctx.config.env.envs_per_world;
         let n = options.num_envs;

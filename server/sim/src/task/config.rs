@@ -426,6 +426,11 @@ impl TaskConfig {
         Ok(config)
     }
 
+    /// The config as a TOML document.
+    pub fn to_toml(&self) -> Result<String, SimError> {
+        toml::to_string(self).map_err(|e| SimError::ConfigSyntax(e.to_string()))
+    }
+
     /// Check every value against its allowed range.
     pub fn validate(&self) -> Result<(), SimError> {
         let p = &self.physics;

@@ -1,0 +1,20 @@
+//! The unigait v1 wire format: code generated from `unigait/v1/unigait.proto`, and helpers to
+//! pack and unpack tensors (little-endian values in `bytes`, row-major shape).
+#![warn(missing_docs)]
+
+mod tensor;
+
+/// Generated messages and services of package `unigait.v1`.
+#[allow(missing_docs, clippy::all, clippy::pedantic)]
+pub mod v1 {
+    tonic::include_proto!("unigait.v1");
+
+    /// Encoded file descriptor set, for gRPC reflection.
+    pub const FILE_DESCRIPTOR_SET: &[u8] =
+        tonic::include_file_descriptor_set!("unigait_v1_descriptor");
+}
+
+pub use tensor::{TensorError, TensorView, f32_tensor, u8_tensor, u32_tensor};
+
+/// The protocol version carried by the package name.
+pub const PROTOCOL_VERSION: &str = "v1";

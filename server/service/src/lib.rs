@@ -1,0 +1,16 @@
+//! unigait-server: the gRPC service over the simulation core (sessions, batched step streams,
+//! limits, errors) and the in-process benchmark.
+#![warn(missing_docs)]
+
+pub mod bench;
+mod convert;
+mod error;
+mod limits;
+mod server;
+mod service;
+mod session;
+mod terrain;
+
+pub use error::ServiceError;
+pub use limits::Limits;
+pub use server::{ServeError, ServeOptions, is_loopback, serve, shutdown_signal};
