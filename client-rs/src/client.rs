@@ -208,10 +208,7 @@ pub struct Session {
 impl Session {
     fn actions(&self, actions: &[f32]) -> v1::Tensor {
         let n = self.spec.num_envs();
-        f32_tensor(
-            actions,
-            &[n, if n == 0 { 0 } else { actions.len() / n.max(1) }],
-        )
+        f32_tensor(actions, &[n, actions.len().checked_div(n).unwrap_or(0)])
     }
 
     /// One step by a unary call.
@@ -292,11 +289,7 @@ impl StepStream {
             String::new()
         };
         self.first = false;
-        let per_env = if self.num_envs == 0 {
-            0
-        } else {
-            actions.len() / self.num_envs
-        };
+        let per_env = actions.len().checked_div(self.num_envs).unwrap_or(0);
         let req = v1::StepRequest {
             session_id,
             actions: Some(f32_tensor(actions, &[self.num_envs, per_env])),
