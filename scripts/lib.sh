@@ -6,13 +6,18 @@ ensure_rust_tools() {
     echo "cargo not found: this project needs the Rust toolchain (rustc 1.95)" >&2
     exit 1
   fi
-  rustup component list --installed 2>/dev/null | grep -q rustfmt || rustup component add rustfmt >/dev/null 2>&1 || true
+  for component in rustfmt clippy; do
+    rustup component list --installed 2>/dev/null | grep -q "^$component" || rustup component add "$component" >/dev/null 2>&1 || true
+  done
 }
 
+# Create the repo's venv and install the Python client with its extras (plus any given extras).
 ensure_python_env() {
+  local extras="dev,torch,rsl_rl,gymnasium"
+  for e in "$@"; do extras="$extras,$e"; done
   if [ ! -x "$VENV/bin/python" ]; then
     python3 -m venv "$VENV"
   fi
   "$VENV/bin/python" -m pip install -q --upgrade pip
-  "$VENV/bin/python" -m pip install -q -e "./client-py[dev,torch,rsl_rl,gymnasium]"
+  "$VENV/bin/python" -m pip install -q -e "./client-py[$extras]"
 }

@@ -1,0 +1,82 @@
+"""Build step: generate the gRPC stubs from ../proto (the single source of the wire format).
+
+The generated modules land in ``src/unigait/_proto/v1/`` (git-ignored) before the normal
+``build_py`` copies the package, so both ``pip install ./client-py`` and editable installs see them.
+Set ``UNIGAIT_PROTO_DIR`` to build from a proto tree elsewhere.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import tempfile
+from pathlib import Path
+
+from setuptools import setup
+from setuptools.command.build_py import build_py
+
+HERE = Path(__file__).resolve().parent
+PROTO_FILE = Path("unigait/v1/unigait.proto")
+OUT_DIR = HERE / "src" / "unigait" / "_proto" / "v1"
+
+
+def _proto_root() -> Path:
+    root = Path(os.environ.get("UNIGAIT_PROTO_DIR", HERE.parent / "proto"))
+    return root.resolve()
+
+
+def generate_stubs() -> None:
+    """Run grpc_tools.protoc on unigait/v1/unigait.proto into src/unigait/_proto/v1/."""
+    root = _proto_root()
+    source = root / PROTO_FILE
+    if not source.is_file():
+        if (OUT_DIR / "unigait_pb2.py").is_file():
+            return  # building from an sdist that already carries the stubs
+        raise RuntimeError(f"unigait: proto file not found at {source} (set UNIGAIT_PROTO_DIR)")
+    import grpc_tools
+    from grpc_tools import protoc
+
+    include = Path(grpc_tools.__file__).parent / "_proto"
+    with tempfile.TemporaryDirectory() as tmp:
+        args = [
+            "grpc_tools.protoc",
+            f"-I{root}",
+            f"-I{include}",
+            f"--python_out={tmp}",
+            f"--pyi_out={tmp}",
+            f"--grpc_python_out={tmp}",
+            str(source),
+        ]
+        if protoc.main(args) != 0:
+            raise RuntimeError(f"unigait: protoc failed on {source}")
+        OUT_DIR.mkdir(parents=True, exist_ok=True)
+        generated = Path(tmp) / PROTO_FILE.parent
+        for path in generated.iterdir():
+            text = path.read_text()
+            # The stubs import each other by proto path (`unigait.v1`), which would clash with
+            # this package: point them at their real location.
+            text = re.sub(
+                r"^from unigait\.v1 import",
+                "from unigait._proto.v1 import",
+                text,
+                flags=re.MULTILINE,
+            )
+            (OUT_DIR / path.name).write_text(text)
+    for pkg in (OUT_DIR.parent, OUT_DIR):
+        (pkg / "__init__.py").write_text('"""Generated from proto/ at build time."""\n')
+    shutil.rmtree(HERE / "build" / "lib" / "unigait" / "_proto", ignore_errors=True)
+
+
+class BuildPyWithStubs(build_py):
+    """``build_py`` that generates the stubs first."""
+
+    def run(self) -> None:
+        """Generate the stubs, then build as usual."""
+        generate_stubs()
+        super().run()
+
+
+# Generate before setup() so that package discovery already sees unigait._proto.
+generate_stubs()
+setup(cmdclass={"build_py": BuildPyWithStubs})

@@ -1,0 +1,199 @@
+"""Command line: ``python -m unigait {train,export,evaluate,info}``."""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import sys
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+
+from unigait.client import Client, SessionConfig, UnigaitError
+from unigait.server_process import LocalServer
+
+QUAD_ONLY_TOML = "[modes]\nbiped_probability = 0.0\n"
+
+
+@contextlib.contextmanager
+def _servers(addresses: Sequence[str], server_bin: str = "") -> Iterator[list[str]]:
+    """The given addresses, or one local server started for the duration."""
+    if addresses:
+        yield list(addresses)
+        return
+    server = LocalServer(server_bin or None)
+    print(f"no --server given: starting {server.binary}", file=sys.stderr)
+    with server:
+        print(f"local server listening on {server.address}", file=sys.stderr)
+        yield [server.address]
+
+
+def _train(args: argparse.Namespace) -> int:
+    import torch
+
+    from unigait.config import load_config
+    from unigait.env import TorchVecEnv
+    from unigait.runners import OnPolicyRunner
+
+    overrides = list(args.set or [])
+    if args.num_envs is not None:
+        overrides.append(f"env.num_envs={args.num_envs}")
+    if args.iterations is not None:
+        overrides.append(f"runner.max_iterations={args.iterations}")
+    if args.log_dir is not None:
+        overrides.append(f"runner.log_dir={json.dumps(args.log_dir)}")
+    if args.seed is not None:
+        overrides += [f"env.seed={args.seed}", f"runner.seed={args.seed}"]
+    if args.quiet:
+        overrides.append("runner.quiet=true")
+    if args.server:
+        overrides.append(f"env.servers={json.dumps(args.server)}")
+    cfg = load_config(args.config, overrides)
+    if args.quad_only:
+        from dataclasses import replace
+
+        toml = cfg.env.task_overrides_toml + "\n" + QUAD_ONLY_TOML
+        cfg = replace(cfg, env=replace(cfg.env, task_overrides_toml=toml))
+    torch.manual_seed(cfg.runner.seed)
+    if cfg.runner.torch_threads > 0:
+        torch.set_num_threads(cfg.runner.torch_threads)
+    log_dir = Path(cfg.runner.log_dir)
+    log_dir.mkdir(parents=True, exist_ok=True)
+    (log_dir / "config.toml").write_text(cfg.to_toml())
+    session_cfg = SessionConfig(
+        num_envs=cfg.env.num_envs,
+        seed=cfg.env.seed,
+        task_overrides_toml=cfg.env.task_overrides_toml,
+        terrain=cfg.env.terrain,
+        terrain_level=cfg.env.terrain_level,
+        reward_terms=True,
+    )
+    with _servers(cfg.env.servers, cfg.env.server_bin) as addresses:
+        env = TorchVecEnv.connect(addresses, session_cfg, cfg.runner.device)
+        try:
+            runner = OnPolicyRunner(env, cfg, log_dir)
+            if args.resume:
+                runner.load(args.resume)
+                print(f"resumed from {args.resume} at iteration {runner.iteration}")
+            remaining = max(cfg.runner.max_iterations - runner.iteration, 0)
+            print(
+                f"training {env.num_envs} envs x {cfg.runner.num_steps_per_env} steps on "
+                f"{', '.join(addresses)} for {remaining} iterations; output in {log_dir}"
+            )
+            runner.learn(remaining)
+        finally:
+            env.close()
+    return 0
+
+
+def _export(args: argparse.Namespace) -> int:
+    from unigait.export import export_onnx, load_policy, max_abs_diff_to_torch
+
+    policy, dims = load_policy(args.checkpoint)
+    export_onnx(policy, args.out, dims["history_length"], dims["obs_dim"])
+    print(
+        f"wrote {args.out}: obs_history f32 [batch, {dims['history_length']}, "
+        f"{dims['obs_dim']}] -> actions f32 [batch, {dims['num_actions']}]"
+    )
+    if args.no_check:
+        return 0
+    try:
+        diff = max_abs_diff_to_torch(policy, args.out)
+    except ImportError:
+        print("onnxruntime not installed: skipped the check against torch", file=sys.stderr)
+        return 0
+    print(f"max |onnx - torch| on random inputs: {diff:.2e}")
+    if diff > 1e-5:
+        print("error: the ONNX graph differs from torch by more than 1e-5", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _evaluate(args: argparse.Namespace) -> int:
+    policy = Path(args.policy).read_bytes()
+    biped = Path(args.biped_policy).read_bytes() if args.biped_policy else b""
+    with _servers(args.server or []) as addresses, Client(addresses[0]) as client:
+        result = client.evaluate(
+            policy,
+            args.scenario,
+            num_envs=args.num_envs,
+            seed=args.seed,
+            record=args.record is not None,
+            biped_policy_onnx=biped,
+        )
+    for name in sorted(result.metrics):
+        print(f"{name:>40} {result.metrics[name]:.4f}")
+    if args.report:
+        Path(args.report).write_text(result.report_json)
+    if args.record:
+        Path(args.record).write_bytes(result.recording_rrd)
+    return 0
+
+
+def _info(args: argparse.Namespace) -> int:
+    with _servers(args.server or []) as addresses:
+        for address in addresses:
+            with Client(address) as client:
+                print(address, client.server_info())
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of every sub-command."""
+    p = argparse.ArgumentParser(prog="unigait", description=__doc__)
+    sub = p.add_subparsers(dest="command", required=True)
+
+    t = sub.add_parser("train", help="PPO + concurrent estimator against unigait server(s)")
+    t.add_argument("--config", help="TOML file with [env], [policy], [ppo], [estimator], [runner]")
+    t.add_argument(
+        "--set",
+        action="append",
+        metavar="SECTION.KEY=VALUE",
+        help="override a config value (TOML syntax), repeatable",
+    )
+    t.add_argument(
+        "--server",
+        action="append",
+        metavar="HOST:PORT",
+        help="server address, repeatable (shards the envs); none: start a local one",
+    )
+    t.add_argument("--num-envs", type=int)
+    t.add_argument("--iterations", type=int, help="total iterations (runner.max_iterations)")
+    t.add_argument("--log-dir")
+    t.add_argument("--seed", type=int)
+    t.add_argument("--resume", metavar="CHECKPOINT", help="continue from a model_*.pt")
+    t.add_argument("--quad-only", action="store_true", help="biped_probability = 0")
+    t.add_argument("--quiet", action="store_true", help="one line per iteration")
+    t.set_defaults(func=_train)
+
+    e = sub.add_parser("export", help="fused estimator + actor to ONNX")
+    e.add_argument("--checkpoint", required=True)
+    e.add_argument("--out", required=True)
+    e.add_argument("--no-check", action="store_true", help="skip the onnxruntime comparison")
+    e.set_defaults(func=_export)
+
+    v = sub.add_parser("evaluate", help="run the server's Evaluate on an ONNX policy")
+    v.add_argument("--policy", required=True, help="ONNX file")
+    v.add_argument("--scenario", required=True, help="e.g. stairs_up_quad")
+    v.add_argument("--server", action="append", metavar="HOST:PORT")
+    v.add_argument("--num-envs", type=int, default=0)
+    v.add_argument("--seed", type=int, default=0)
+    v.add_argument("--biped-policy", help="second ONNX policy for the two-policy baseline")
+    v.add_argument("--record", metavar="OUT.rrd", help="write a rerun recording of env 0")
+    v.add_argument("--report", metavar="OUT.json", help="write the full JSON report")
+    v.set_defaults(func=_evaluate)
+
+    i = sub.add_parser("info", help="print server info")
+    i.add_argument("--server", action="append", metavar="HOST:PORT")
+    i.set_defaults(func=_info)
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``python -m unigait`` and the ``unigait`` script."""
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args))
+    except UnigaitError as err:
+        print(f"error: server said {err}", file=sys.stderr)
+        return 2

@@ -1,0 +1,193 @@
+"""Learner configuration: dataclasses with defaults, TOML files and overrides.
+
+Overrides look like ``section.key=value`` with the value parsed as TOML, e.g.
+``ppo.learning_rate=3e-4`` or ``env.servers=["a:1","b:2"]``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from unigait.algorithms.estimator_learning import EstimatorConfig
+from unigait.algorithms.ppo import PPOConfig
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    """Where and what to simulate.
+
+    Attributes:
+        servers: Server addresses; several shard the batch. Empty: start a local server.
+        server_bin: Binary for a local server (empty: ``$UNIGAIT_SERVER_BIN`` or the repo's build).
+        num_envs: Envs in the batch (256: measured on 2 cores, see the package README).
+        seed: Session seed (shard i gets seed + i).
+        task_overrides_toml: TOML fragment overriding the task config.
+        terrain: ``"flat"``, ``"curriculum"`` or a pinned type.
+        terrain_level: Level of a pinned type or the curriculum's highest starting level.
+    """
+
+    servers: tuple[str, ...] = ()
+    server_bin: str = ""
+    num_envs: int = 256
+    seed: int = 1
+    task_overrides_toml: str = ""
+    terrain: str = "flat"
+    terrain_level: int = 0
+
+
+@dataclass(frozen=True)
+class PolicyConfig:
+    """Network shapes.
+
+    Attributes:
+        actor_hidden_dims: Actor MLP ((512, 256, 128)).
+        critic_hidden_dims: Critic MLP ((512, 256, 128)).
+        activation: ``"elu"``.
+        init_noise_std: Initial action std (1.0).
+        history_length: Observations in the history (3: o_t, o_{t-1}, o_{t-2}).
+    """
+
+    actor_hidden_dims: tuple[int, ...] = (512, 256, 128)
+    critic_hidden_dims: tuple[int, ...] = (512, 256, 128)
+    activation: str = "elu"
+    init_noise_std: float = 1.0
+    history_length: int = 3
+
+
+@dataclass(frozen=True)
+class RunnerConfig:
+    """The training loop.
+
+    Attributes:
+        num_steps_per_env: Steps per env per iteration (24).
+        max_iterations: Iterations of ``train`` (a resumed run counts from its checkpoint).
+        save_interval: Checkpoint every this many iterations.
+        plot_interval: Redraw the PNG every this many iterations.
+        log_dir: Output directory (CSV, PNG, checkpoints, config).
+        device: Torch device.
+        torch_threads: Torch intra-op threads (1; 0: torch's default). On a 2-core box that
+            also runs the server, two OpenMP threads made the PPO update 3-5x slower than one
+            (a spinning thread waits for a core the simulation holds).
+        seed: Torch seed.
+        quiet: Print one line per iteration instead of the full block.
+    """
+
+    num_steps_per_env: int = 24
+    max_iterations: int = 500
+    save_interval: int = 50
+    plot_interval: int = 10
+    log_dir: str = "runs/unigait"
+    device: str = "cpu"
+    torch_threads: int = 1
+    seed: int = 1
+    quiet: bool = False
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Everything ``python -m unigait train`` needs."""
+
+    env: EnvConfig = field(default_factory=EnvConfig)
+    policy: PolicyConfig = field(default_factory=PolicyConfig)
+    ppo: PPOConfig = field(default_factory=PPOConfig)
+    estimator: EstimatorConfig = field(default_factory=EstimatorConfig)
+    runner: RunnerConfig = field(default_factory=RunnerConfig)
+
+    def to_dict(self) -> dict[str, dict[str, Any]]:
+        """Plain nested dict (tuples as lists)."""
+        return {
+            f.name: {
+                k: list(v) if isinstance(v, tuple) else v
+                for k, v in dataclasses.asdict(getattr(self, f.name)).items()
+            }
+            for f in dataclasses.fields(self)
+        }
+
+    def to_toml(self) -> str:
+        """The config as TOML text (loadable with :func:`load_config`)."""
+        lines: list[str] = []
+        for section, values in self.to_dict().items():
+            lines.append(f"[{section}]")
+            lines += [f"{k} = {_toml_value(v)}" for k, v in values.items()]
+            lines.append("")
+        return "\n".join(lines)
+
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int | float):
+        return repr(v)
+    if isinstance(v, str):
+        if "\n" in v:
+            return '"""\n' + v.replace("\\", "\\\\") + '"""'
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, list | tuple):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    raise TypeError(f"cannot write {v!r} as TOML")
+
+
+def _coerce(section: type, key: str, value: Any) -> Any:
+    hints = typing.get_type_hints(section)
+    if key not in hints:
+        known = [f.name for f in dataclasses.fields(section)]
+        raise KeyError(f"unknown key {key!r} in [{section.__name__}]; known: {known}")
+    hint = hints[key]
+    if typing.get_origin(hint) is tuple:
+        if not isinstance(value, list | tuple):
+            value = [value]
+        return tuple(value)
+    if hint is float and isinstance(value, int):
+        return float(value)
+    if hint is int and isinstance(value, float) and value.is_integer():
+        return int(value)
+    if hint in (int, float, str, bool) and not isinstance(value, hint):
+        raise TypeError(f"{section.__name__}.{key} must be {hint.__name__}, got {value!r}")
+    return value
+
+
+def apply(cfg: TrainConfig, values: dict[str, dict[str, Any]]) -> TrainConfig:
+    """A copy of ``cfg`` with ``values[section][key]`` set (unknown names are errors)."""
+    sections = {f.name: f for f in dataclasses.fields(cfg)}
+    changes: dict[str, Any] = {}
+    for name, entries in values.items():
+        if name not in sections:
+            raise KeyError(f"unknown config section [{name}]; known: {sorted(sections)}")
+        current = getattr(cfg, name)
+        cls = type(current)
+        updated = {k: _coerce(cls, k, v) for k, v in entries.items()}
+        changes[name] = dataclasses.replace(current, **updated)
+    return dataclasses.replace(cfg, **changes)
+
+
+def parse_override(text: str) -> tuple[str, str, Any]:
+    """``"ppo.learning_rate=3e-4"`` -> ``("ppo", "learning_rate", 3e-4)``.
+
+    The value is parsed as a TOML value; a bare word that is not valid TOML is taken as a string.
+    """
+    if "=" not in text or "." not in text.split("=", 1)[0]:
+        raise ValueError(f"override must look like section.key=value, got {text!r}")
+    path, raw = text.split("=", 1)
+    section, key = path.strip().split(".", 1)
+    try:
+        value = tomllib.loads(f"v = {raw.strip()}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = raw.strip()
+    return section, key, value
+
+
+def load_config(path: str | Path | None = None, overrides: list[str] | None = None) -> TrainConfig:
+    """Defaults, then the TOML file (if any), then the overrides, in that order."""
+    cfg = TrainConfig()
+    if path is not None:
+        cfg = apply(cfg, tomllib.loads(Path(path).read_text()))
+    grouped: dict[str, dict[str, Any]] = {}
+    for text in overrides or []:
+        section, key, value = parse_override(text)
+        grouped.setdefault(section, {})[key] = value
+    return apply(cfg, grouped)

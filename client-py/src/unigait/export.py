@@ -1,0 +1,76 @@
+"""Export the fused estimator + actor to ONE ONNX graph and check it against torch.
+
+Graph: input ``obs_history`` f32 [batch, 3, 53] (o_t, o_{t-1}, o_{t-2}), output ``actions``
+f32 [batch, 12] (the actor's mean), dynamic axis ``batch``.
+"""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from unigait.config import TrainConfig, apply
+from unigait.modules import EstimatorActorPolicy
+from unigait.runners.on_policy_runner import build_networks
+
+#: ONNX opset of the export (tract-onnx and onnxruntime both run it).
+OPSET = 17
+
+
+def load_policy(checkpoint: str | Path) -> tuple[EstimatorActorPolicy, dict[str, int]]:
+    """The fused policy of a training checkpoint, in eval mode on the CPU, and its dims."""
+    state: dict[str, Any] = torch.load(checkpoint, map_location="cpu", weights_only=False)
+    cfg = apply(TrainConfig(), state["config"])
+    dims = state["dims"]
+    actor_critic, estimator = build_networks(
+        cfg, dims["obs_dim"], dims["label_dim"], dims["privileged_dim"], dims["num_actions"]
+    )
+    actor_critic.load_state_dict(state["actor_critic"])
+    estimator.load_state_dict(state["estimator"])
+    policy = EstimatorActorPolicy(estimator, actor_critic.actor).eval()
+    return policy, dims
+
+
+def export_onnx(
+    policy: EstimatorActorPolicy, path: str | Path, history_length: int = 3, obs_dim: int = 53
+) -> None:
+    """Write ``policy`` as ONNX (legacy TorchScript exporter, ``dynamo=False``)."""
+    policy = policy.eval().to("cpu")
+    dummy = torch.zeros(1, history_length, obs_dim)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", category=DeprecationWarning)
+        warnings.simplefilter("ignore", category=FutureWarning)
+        torch.onnx.export(
+            policy,
+            (dummy,),
+            str(path),
+            input_names=["obs_history"],
+            output_names=["actions"],
+            dynamic_axes={"obs_history": {0: "batch"}, "actions": {0: "batch"}},
+            opset_version=OPSET,
+            dynamo=False,
+        )
+
+
+def max_abs_diff_to_torch(
+    policy: EstimatorActorPolicy, path: str | Path, batch: int = 64, seed: int = 0
+) -> float:
+    """Largest |onnxruntime - torch| over a random batch f32 [batch, H, 53] (N(0, 1) values).
+
+    Raises:
+        ImportError: onnxruntime is not installed (it is in the ``dev`` extra).
+    """
+    import onnxruntime
+
+    session = onnxruntime.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    shape = session.get_inputs()[0].shape
+    rng = np.random.default_rng(seed)
+    x = rng.standard_normal((batch, int(shape[1]), int(shape[2]))).astype(np.float32)
+    (onnx_out,) = session.run(["actions"], {"obs_history": x})
+    with torch.no_grad():
+        torch_out = policy(torch.from_numpy(x)).numpy()
+    return float(np.max(np.abs(onnx_out - torch_out)))

@@ -1,0 +1,256 @@
+"""The paper's learner: PPO on the actor-critic and concurrent estimator regression.
+
+Per iteration: roll out T steps of N envs (the actor sees o_{t-2:t} and the detached estimate),
+bootstrap time-outs from the critic's value of the final state, GAE, PPO, then the estimator's
+MSE epochs on the same rollout.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from unigait.algorithms import PPO, EstimatorLearning
+from unigait.config import TrainConfig
+from unigait.env import EpisodeStats, ObservationHistory, TorchStep, TorchVecEnv
+from unigait.modules import ActorCritic, Estimator, EstimatorActorPolicy
+from unigait.storage import RolloutStorage, bootstrap_time_outs
+from unigait.utils import Timers, TrainLogger
+
+
+def build_networks(
+    cfg: TrainConfig, obs_dim: int, label_dim: int, privileged_dim: int, num_actions: int
+) -> tuple[ActorCritic, Estimator]:
+    """The actor-critic (actor input H*53 + 14, critic input 53 + 14 + 10) and the estimator."""
+    history_dim = cfg.policy.history_length * obs_dim
+    estimator = Estimator(history_dim, label_dim, cfg.estimator.hidden_dims, cfg.policy.activation)
+    actor_critic = ActorCritic(
+        actor_in=history_dim + label_dim,
+        critic_in=obs_dim + label_dim + privileged_dim,
+        num_actions=num_actions,
+        actor_hidden=cfg.policy.actor_hidden_dims,
+        critic_hidden=cfg.policy.critic_hidden_dims,
+        activation=cfg.policy.activation,
+        init_noise_std=cfg.policy.init_noise_std,
+    )
+    return actor_critic, estimator
+
+
+class OnPolicyRunner:
+    """Runs training against a :class:`TorchVecEnv`.
+
+    Args:
+        env: The envs (their session must return reward terms).
+        cfg: The config.
+        log_dir: Where CSV, PNG and checkpoints go (None: no files, no printing).
+    """
+
+    def __init__(self, env: TorchVecEnv, cfg: TrainConfig, log_dir: Path | None = None) -> None:
+        self.env = env
+        self.cfg = cfg
+        self.device = env.device
+        spec = env.spec
+        self.dims = {
+            "obs_dim": spec.obs_dim,
+            "label_dim": spec.label_dim,
+            "privileged_dim": spec.privileged_dim,
+            "num_actions": spec.num_actions,
+            "history_length": cfg.policy.history_length,
+        }
+        self.actor_critic, self.estimator = build_networks(
+            cfg, spec.obs_dim, spec.label_dim, spec.privileged_dim, spec.num_actions
+        )
+        self.actor_critic.to(self.device)
+        self.estimator.to(self.device)
+        self.ppo = PPO(self.actor_critic, cfg.ppo)
+        self.estimator_learning = EstimatorLearning(self.estimator, cfg.estimator)
+        history_dim = cfg.policy.history_length * spec.obs_dim
+        self.storage = RolloutStorage(
+            cfg.runner.num_steps_per_env,
+            env.num_envs,
+            history_dim + spec.label_dim,
+            history_dim,
+            spec.obs_dim + spec.label_dim + spec.privileged_dim,
+            spec.label_dim,
+            spec.num_actions,
+            self.device,
+        )
+        self.history = ObservationHistory(
+            env.num_envs, cfg.policy.history_length, spec.obs_dim, self.device
+        )
+        self.history.reset(env.last.obs)
+        self.stats = EpisodeStats(env.num_envs, spec.reward_terms, self.device)
+        self.iteration = 0
+        self.total_env_steps = 0
+        self.timers = Timers()
+        self.log_dir = log_dir
+        self.logger: TrainLogger | None = None
+        if log_dir is not None:
+            log_dir.mkdir(parents=True, exist_ok=True)
+            self.logger = TrainLogger(log_dir, spec.reward_terms, cfg.runner.quiet)
+
+    def policy(self) -> EstimatorActorPolicy:
+        """The fused estimator + actor (mean action) for export or deployment."""
+        return EstimatorActorPolicy(self.estimator, self.actor_critic.actor)
+
+    def _bootstrapped_rewards(self, step: TorchStep) -> torch.Tensor:
+        """r_t plus gamma * V(final critic input) for envs that timed out (not terminated)."""
+        final_values = (
+            self.actor_critic.value(step.final_critic_obs)
+            if step.final_env_ids.numel()
+            else step.reward.new_zeros(0)
+        )
+        return bootstrap_time_outs(
+            step.reward,
+            step.terminated,
+            step.truncated,
+            step.final_env_ids,
+            final_values,
+            self.cfg.ppo.gamma,
+        )
+
+    def rollout(self) -> dict[str, float]:
+        """Collect one rollout into the storage and compute returns; return rollout statistics."""
+        env, ac, timers = self.env, self.actor_critic, self.timers
+        spec = env.spec
+        self.storage.clear()
+        step = env.last
+        term_sum = torch.zeros(len(spec.reward_terms), device=self.device)
+        reward_sum, biped, level = 0.0, 0.0, 0.0
+        ended: dict[str, list[torch.Tensor]] = {
+            "reward": [],
+            "length": [],
+            "terms": [],
+            "time_out": [],
+        }
+        for _ in range(self.cfg.runner.num_steps_per_env):
+            with timers.time("inference"), torch.no_grad():
+                history = self.history.flat
+                actor_obs = torch.cat([history, self.estimator(history)], dim=-1)
+                actions, log_prob, dist = ac.act(actor_obs)
+                values = ac.value(step.critic_obs)
+            with timers.time("simulation"):
+                nxt = env.step(actions)
+            with timers.time("inference"), torch.no_grad():
+                rewards = self._bootstrapped_rewards(nxt)
+                self.storage.add(
+                    actor_obs,
+                    step.critic_obs,
+                    step.labels,
+                    actions,
+                    log_prob,
+                    dist.mean,
+                    dist.stddev,
+                    values,
+                    rewards,
+                    nxt.dones,
+                )
+                self.history.push(nxt.obs, nxt.dones)
+                for k, v in self.stats.update(nxt).items():
+                    ended[k].append(v)
+                if nxt.reward_terms is not None:
+                    term_sum += nxt.reward_terms.sum(0)
+                reward_sum += float(nxt.reward.sum())
+                biped += float((nxt.mode == 1).float().mean())
+                level += float(nxt.terrain_level.float().mean())
+            step = nxt
+        with timers.time("inference"), torch.no_grad():
+            last_values = ac.value(step.critic_obs)
+            self.storage.compute_returns(
+                last_values, self.cfg.ppo.gamma, self.cfg.ppo.lam, self.cfg.ppo.normalize_advantage
+            )
+        steps = self.cfg.runner.num_steps_per_env
+        samples = steps * env.num_envs
+        out: dict[str, float] = {
+            "mean_step_reward": reward_sum / samples,
+            "terrain_level": level / steps,
+            "biped_share": biped / steps,
+        }
+        ep = {k: torch.cat(v) for k, v in ended.items()}
+        n_ep = int(ep["reward"].numel())
+        out["episodes"] = float(n_ep)
+        out["time_outs"] = float(ep["time_out"].sum()) if n_ep else 0.0
+        out["mean_episode_reward"] = float(ep["reward"].mean()) if n_ep else math.nan
+        out["mean_episode_length"] = float(ep["length"].float().mean()) if n_ep else math.nan
+        per_s = ep["terms"].mean(0) / spec.episode_length_s if n_ep else None
+        for i, name in enumerate(spec.reward_terms):
+            out[f"episode_reward/{name}"] = float(per_s[i]) if per_s is not None else math.nan
+            out[f"step_reward/{name}"] = float(term_sum[i]) / samples
+        return out
+
+    def update(self) -> dict[str, float]:
+        """PPO epochs, then the estimator's epochs, on the stored rollout."""
+        with self.timers.time("update"):
+            stats = self.ppo.update(self.storage)
+            stats.update(self.estimator_learning.update(self.storage))
+        return stats
+
+    def learn(self, num_iterations: int) -> list[dict[str, float]]:
+        """Train for ``num_iterations`` more iterations; return the logged scalars of each."""
+        rc = self.cfg.runner
+        history: list[dict[str, float]] = []
+        for i in range(num_iterations):
+            self.timers.reset()
+            start = time.perf_counter()
+            self.actor_critic.train()
+            scalars = self.rollout()
+            scalars.update(self.update())
+            elapsed = time.perf_counter() - start
+            self.iteration += 1
+            samples = rc.num_steps_per_env * self.env.num_envs
+            self.total_env_steps += samples
+            t = self.timers.seconds
+            scalars = {
+                "iteration": float(self.iteration),
+                "total_env_steps": float(self.total_env_steps),
+                "env_steps_per_s": samples / elapsed,
+                "iteration_time_s": elapsed,
+                "time_share/simulation": t["simulation"] / elapsed,
+                "time_share/inference": t["inference"] / elapsed,
+                "time_share/update": t["update"] / elapsed,
+                **scalars,
+            }
+            history.append(scalars)
+            if self.logger is not None and self.log_dir is not None:
+                self.logger.log(scalars)
+                last = i == num_iterations - 1
+                if self.iteration % rc.save_interval == 0 or last:
+                    self.save(self.log_dir / f"model_{self.iteration}.pt")
+                if self.iteration % rc.plot_interval == 0 or last:
+                    self.logger.plot()
+        return history
+
+    def state_dict(self) -> dict[str, Any]:
+        """Everything a checkpoint holds."""
+        return {
+            "iteration": self.iteration,
+            "total_env_steps": self.total_env_steps,
+            "actor_critic": self.actor_critic.state_dict(),
+            "estimator": self.estimator.state_dict(),
+            "optimizer": self.ppo.optimizer.state_dict(),
+            "estimator_optimizer": self.estimator_learning.optimizer.state_dict(),
+            "learning_rate": self.ppo.learning_rate,
+            "config": self.cfg.to_dict(),
+            "dims": self.dims,
+        }
+
+    def save(self, path: Path) -> None:
+        """Write a checkpoint (and ``model_latest.pt`` beside it)."""
+        state = self.state_dict()
+        torch.save(state, path)
+        torch.save(state, path.with_name("model_latest.pt"))
+
+    def load(self, path: str | Path) -> None:
+        """Restore networks, optimisers, learning rate and counters from a checkpoint."""
+        state = torch.load(path, map_location=self.device, weights_only=False)
+        self.actor_critic.load_state_dict(state["actor_critic"])
+        self.estimator.load_state_dict(state["estimator"])
+        self.ppo.optimizer.load_state_dict(state["optimizer"])
+        self.estimator_learning.optimizer.load_state_dict(state["estimator_optimizer"])
+        self.ppo._set_lr(float(state["learning_rate"]))
+        self.iteration = int(state["iteration"])
+        self.total_env_steps = int(state.get("total_env_steps", 0))

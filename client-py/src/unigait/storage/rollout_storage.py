@@ -1,0 +1,242 @@
+"""Rollout buffer of T steps x N envs, GAE, and mini-batch iterators."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import torch
+
+
+def compute_gae(
+    rewards: torch.Tensor,
+    values: torch.Tensor,
+    dones: torch.Tensor,
+    last_values: torch.Tensor,
+    gamma: float,
+    lam: float,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Generalised advantage estimation over a rollout.
+
+    ``dones[t]`` means the episode ended after step t: no value flows back across it. A time-out is
+    handled by the caller, who adds ``gamma * V(final state)`` to ``rewards[t]`` and sets
+    ``dones[t]``; a termination only sets ``dones[t]``.
+
+    Args:
+        rewards: f32 [T, N] rewards (truncation bootstrap already added).
+        values: f32 [T, N] V(s_t) at action time.
+        dones: bool or f32 [T, N].
+        last_values: f32 [N] V(s_T) after the last step.
+        gamma: Discount.
+        lam: GAE lambda.
+
+    Returns:
+        advantages f32 [T, N] and returns f32 [T, N] (advantages + values).
+    """
+    steps = rewards.shape[0]
+    not_done = 1.0 - dones.float()
+    advantages = torch.zeros_like(rewards)
+    gae = torch.zeros_like(last_values)
+    for t in reversed(range(steps)):
+        next_values = last_values if t == steps - 1 else values[t + 1]
+        delta = rewards[t] + not_done[t] * gamma * next_values - values[t]
+        gae = delta + not_done[t] * gamma * lam * gae
+        advantages[t] = gae
+    return advantages, advantages + values
+
+
+def bootstrap_time_outs(
+    rewards: torch.Tensor,
+    terminated: torch.Tensor,
+    truncated: torch.Tensor,
+    final_env_ids: torch.Tensor,
+    final_values: torch.Tensor,
+    gamma: float,
+) -> torch.Tensor:
+    """Add gamma * V(final state) to the reward of envs that timed out (and did not terminate).
+
+    Args:
+        rewards: f32 [N] rewards of the step.
+        terminated: bool [N].
+        truncated: bool [N].
+        final_env_ids: i64 [K] envs that ended in the step.
+        final_values: f32 [K] critic values of their final critic inputs (o, e, s).
+        gamma: Discount.
+
+    Returns:
+        f32 [N] new rewards (the input is not modified).
+    """
+    out = rewards.clone()
+    if final_env_ids.numel():
+        timed_out = (truncated & ~terminated)[final_env_ids]
+        out[final_env_ids[timed_out]] += gamma * final_values[timed_out]
+    return out
+
+
+@dataclass
+class MiniBatch:
+    """A PPO mini-batch of B samples.
+
+    Attributes:
+        actor_obs: f32 [B, 173] history + estimate as the actor saw them.
+        critic_obs: f32 [B, 77].
+        actions: f32 [B, 12].
+        old_log_prob: f32 [B].
+        old_mu: f32 [B, 12].
+        old_sigma: f32 [B, 12].
+        old_values: f32 [B].
+        advantages: f32 [B].
+        returns: f32 [B].
+    """
+
+    actor_obs: torch.Tensor
+    critic_obs: torch.Tensor
+    actions: torch.Tensor
+    old_log_prob: torch.Tensor
+    old_mu: torch.Tensor
+    old_sigma: torch.Tensor
+    old_values: torch.Tensor
+    advantages: torch.Tensor
+    returns: torch.Tensor
+
+
+class RolloutStorage:
+    """Fixed-size buffer of one rollout.
+
+    Args:
+        num_steps: T steps per env.
+        num_envs: N.
+        actor_obs_dim: Actor input size (history + estimate, 173).
+        history_dim: Estimator input size (the first ``history_dim`` columns of the actor input).
+        critic_obs_dim: Critic input size (77).
+        label_dim: Estimator target size (14).
+        num_actions: 12.
+        device: Where the buffer lives.
+    """
+
+    def __init__(
+        self,
+        num_steps: int,
+        num_envs: int,
+        actor_obs_dim: int,
+        history_dim: int,
+        critic_obs_dim: int,
+        label_dim: int,
+        num_actions: int,
+        device: str | torch.device = "cpu",
+    ) -> None:
+        self.num_steps = num_steps
+        self.num_envs = num_envs
+        self.history_dim = history_dim
+
+        def z(*shape: int) -> torch.Tensor:
+            return torch.zeros(num_steps, num_envs, *shape, device=device)
+
+        self.actor_obs = z(actor_obs_dim)
+        self.critic_obs = z(critic_obs_dim)
+        self.labels = z(label_dim)
+        self.actions = z(num_actions)
+        self.log_prob = z()
+        self.mu = z(num_actions)
+        self.sigma = z(num_actions)
+        self.values = z()
+        self.rewards = z()
+        self.dones = z()
+        self.advantages = z()
+        self.returns = z()
+        self.step = 0
+
+    def add(
+        self,
+        actor_obs: torch.Tensor,
+        critic_obs: torch.Tensor,
+        labels: torch.Tensor,
+        actions: torch.Tensor,
+        log_prob: torch.Tensor,
+        mu: torch.Tensor,
+        sigma: torch.Tensor,
+        values: torch.Tensor,
+        rewards: torch.Tensor,
+        dones: torch.Tensor,
+    ) -> None:
+        """Store step t (every argument is [N, ...] for this step).
+
+        ``labels`` are e_t of the observation the actor acted on; ``dones`` mark episodes that
+        ended after this step.
+        """
+        if self.step >= self.num_steps:
+            raise OverflowError("rollout storage is full; call clear() first")
+        t = self.step
+        self.actor_obs[t] = actor_obs
+        self.critic_obs[t] = critic_obs
+        self.labels[t] = labels
+        self.actions[t] = actions
+        self.log_prob[t] = log_prob
+        self.mu[t] = mu
+        self.sigma[t] = sigma
+        self.values[t] = values
+        self.rewards[t] = rewards
+        self.dones[t] = dones.float()
+        self.step += 1
+
+    def clear(self) -> None:
+        """Start a new rollout."""
+        self.step = 0
+
+    def compute_returns(
+        self, last_values: torch.Tensor, gamma: float, lam: float, normalize: bool = True
+    ) -> None:
+        """GAE over the stored rollout; advantages normalised over the whole batch if asked."""
+        adv, self.returns = compute_gae(
+            self.rewards, self.values, self.dones, last_values, gamma, lam
+        )
+        if normalize:
+            adv = (adv - adv.mean()) / (adv.std() + 1e-8)
+        self.advantages = adv
+
+    def mini_batches(self, num_mini_batches: int, num_epochs: int) -> Iterator[MiniBatch]:
+        """Random mini-batches over ``num_epochs`` passes (a fresh permutation per epoch)."""
+        n = self.num_steps * self.num_envs
+        size = n // num_mini_batches
+        flat = {
+            name: getattr(self, name).flatten(0, 1)
+            for name in (
+                "actor_obs",
+                "critic_obs",
+                "actions",
+                "log_prob",
+                "mu",
+                "sigma",
+                "values",
+                "advantages",
+                "returns",
+            )
+        }
+        for _ in range(num_epochs):
+            perm = torch.randperm(n, device=self.actor_obs.device)
+            for i in range(num_mini_batches):
+                idx = perm[i * size : (i + 1) * size]
+                yield MiniBatch(
+                    actor_obs=flat["actor_obs"][idx],
+                    critic_obs=flat["critic_obs"][idx],
+                    actions=flat["actions"][idx],
+                    old_log_prob=flat["log_prob"][idx],
+                    old_mu=flat["mu"][idx],
+                    old_sigma=flat["sigma"][idx],
+                    old_values=flat["values"][idx],
+                    advantages=flat["advantages"][idx],
+                    returns=flat["returns"][idx],
+                )
+
+    def estimator_batches(
+        self, batch_size: int, num_epochs: int
+    ) -> Iterator[tuple[torch.Tensor, torch.Tensor]]:
+        """(history f32 [B, 159], labels f32 [B, 14]) mini-batches of ``batch_size`` samples."""
+        history = self.actor_obs[..., : self.history_dim].flatten(0, 1)
+        labels = self.labels.flatten(0, 1)
+        n = history.shape[0]
+        for _ in range(num_epochs):
+            perm = torch.randperm(n, device=history.device)
+            for start in range(0, n - batch_size + 1 if n >= batch_size else 1, batch_size):
+                idx = perm[start : start + batch_size]
+                yield history[idx], labels[idx]

@@ -1,0 +1,54 @@
+"""``python -m unigait`` train (with --resume), export and evaluate against the fake server."""
+
+import csv
+import json
+
+from unigait.cli import main
+
+SMALL = [
+    "--set", "runner.num_steps_per_env=4",
+    "--set", "policy.actor_hidden_dims=[16]",
+    "--set", "policy.critic_hidden_dims=[16]",
+    "--set", "estimator.hidden_dims=[16]",
+    "--set", "estimator.mini_batch_size=8",
+    "--set", "runner.save_interval=1",
+]  # fmt: skip
+
+
+def test_train_resume_export_evaluate(fake_server, tmp_path, capsys):
+    address, servicer = fake_server
+    log_dir = tmp_path / "run"
+    args = ["train", "--server", address, "--num-envs", "6", "--log-dir", str(log_dir), *SMALL]
+    assert main([*args, "--iterations", "2", "--quad-only"]) == 0
+    out = capsys.readouterr().out
+    assert "Learning" not in out and "quad_tracking_lin_vel" in out  # full block per iteration
+    assert (log_dir / "model_2.pt").is_file() and (log_dir / "config.toml").is_file()
+    assert "biped_probability = 0.0" in (log_dir / "config.toml").read_text()
+    assert not servicer.sims  # the session was closed
+
+    assert main([*args, "--iterations", "3", "--resume", str(log_dir / "model_2.pt")]) == 0
+    assert "resumed from" in capsys.readouterr().out
+    with (log_dir / "progress.csv").open() as f:
+        assert [row["iteration"] for row in csv.DictReader(f)] == ["1", "2", "3"]
+
+    onnx_path = tmp_path / "policy.onnx"
+    assert (
+        main(["export", "--checkpoint", str(log_dir / "model_3.pt"), "--out", str(onnx_path)]) == 0
+    )
+    report = tmp_path / "report.json"
+    rrd = tmp_path / "run.rrd"
+    evaluate = ["evaluate", "--server", address, "--policy", str(onnx_path)]
+    options = ["--scenario", "flat_quad", "--num-envs", "5", "--report", str(report)]
+    code = main([*evaluate, *options, "--record", str(rrd)])
+    assert code == 0
+    assert "policy_bytes" in capsys.readouterr().out
+    assert json.loads(report.read_text()) == {"scenario": "flat_quad"}
+    assert rrd.read_bytes() == b"RRD"
+
+
+def test_server_errors_become_exit_code_2(fake_server, tmp_path, capsys):
+    address, _ = fake_server
+    empty = tmp_path / "empty.onnx"
+    empty.write_bytes(b"")
+    assert main(["evaluate", "--server", address, "--policy", str(empty), "--scenario", "x"]) == 2
+    assert "INVALID_ARGUMENT" in capsys.readouterr().err

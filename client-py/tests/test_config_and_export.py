@@ -1,0 +1,81 @@
+"""Config loading/overrides and the fused ONNX export."""
+
+import numpy as np
+import onnx
+import pytest
+import torch
+
+from unigait.config import TrainConfig, load_config, parse_override
+from unigait.export import export_onnx, load_policy, max_abs_diff_to_torch
+from unigait.modules import EstimatorActorPolicy
+from unigait.runners import build_networks
+
+
+def test_config_overrides_and_toml(tmp_path):
+    cfg = load_config(
+        None,
+        [
+            "ppo.learning_rate=3e-4",
+            "env.num_envs=64",
+            'env.servers=["a:1", "b:2"]',
+            "runner.log_dir=runs/x",
+        ],
+    )
+    assert cfg.ppo.learning_rate == 3e-4 and cfg.env.num_envs == 64
+    assert cfg.env.servers == ("a:1", "b:2") and cfg.runner.log_dir == "runs/x"
+    assert parse_override("env.terrain=flat") == ("env", "terrain", "flat")
+    with pytest.raises(KeyError, match="learning_rat"):
+        load_config(None, ["ppo.learning_rat=1"])
+    with pytest.raises(KeyError, match="unknown config section"):
+        load_config(None, ["nope.x=1"])
+    path = tmp_path / "c.toml"
+    path.write_text(TrainConfig().to_toml())
+    assert load_config(path) == TrainConfig()
+    assert (
+        TrainConfig().ppo.num_mini_batches == 4 and TrainConfig().estimator.mini_batch_size == 768
+    )
+
+
+def test_onnx_export_matches_torch(tmp_path):
+    torch.manual_seed(0)
+    cfg = TrainConfig()
+    ac, est = build_networks(cfg, 53, 14, 10, 12)
+    with torch.no_grad():  # move the std-free actor away from its init a little
+        for p in ac.actor.parameters():
+            p.add_(0.05 * torch.randn_like(p))
+    ckpt = tmp_path / "model.pt"
+    torch.save(
+        {
+            "config": cfg.to_dict(),
+            "actor_critic": ac.state_dict(),
+            "estimator": est.state_dict(),
+            "dims": {
+                "obs_dim": 53,
+                "label_dim": 14,
+                "privileged_dim": 10,
+                "num_actions": 12,
+                "history_length": 3,
+            },
+        },
+        ckpt,
+    )
+    policy, dims = load_policy(ckpt)
+    assert isinstance(policy, EstimatorActorPolicy) and dims["history_length"] == 3
+    out = tmp_path / "policy.onnx"
+    export_onnx(policy, out)
+    model = onnx.load(out)
+    onnx.checker.check_model(model)
+    (inp,) = model.graph.input
+    (outp,) = model.graph.output
+    assert inp.name == "obs_history" and outp.name == "actions"
+    dims_in = [d.dim_param or d.dim_value for d in inp.type.tensor_type.shape.dim]
+    dims_out = [d.dim_param or d.dim_value for d in outp.type.tensor_type.shape.dim]
+    assert dims_in == ["batch", 3, 53] and dims_out == ["batch", 12]
+    assert len(model.graph.input) == 1  # estimator and actor are one graph
+    for batch in (1, 257):
+        assert max_abs_diff_to_torch(policy, out, batch=batch, seed=batch) <= 1e-5
+    # The fused graph equals estimator then actor by hand.
+    x = torch.randn(4, 3, 53)
+    flat = x.flatten(1)
+    by_hand = ac.actor(torch.cat([flat, est(flat)], -1))
+    np.testing.assert_allclose(policy(x).detach(), by_hand.detach(), atol=1e-6)

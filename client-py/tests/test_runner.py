@@ -1,0 +1,72 @@
+"""The learner's loop, checkpoints, CSV/PNG output and export CLI over the fake session; rsl_rl's
+own runner on the adapter."""
+
+import csv
+import math
+
+import torch
+from fakes import FakeSession
+from rsl_rl.runners import OnPolicyRunner as RslOnPolicyRunner
+
+from unigait.cli import main
+from unigait.config import load_config
+from unigait.env import TorchVecEnv
+from unigait.env.rsl_rl_env import RslRlVecEnv, rsl_rl_train_cfg
+from unigait.runners import OnPolicyRunner
+
+SMALL = [
+    "runner.num_steps_per_env=6",
+    "policy.actor_hidden_dims=[32, 16]",
+    "policy.critic_hidden_dims=[32, 16]",
+    "estimator.hidden_dims=[16]",
+    "estimator.mini_batch_size=16",
+    "runner.save_interval=2",
+    "runner.plot_interval=1",
+    "runner.quiet=true",
+]
+
+
+def test_runner_trains_logs_checkpoints_and_resumes(tmp_path, capsys):
+    torch.manual_seed(0)
+    cfg = load_config(None, SMALL)
+    runner = OnPolicyRunner(TorchVecEnv(FakeSession(8)), cfg, tmp_path)
+    before = [p.clone() for p in runner.estimator.parameters()]
+    history = runner.learn(2)
+    assert [h["iteration"] for h in history] == [1.0, 2.0]
+    last = history[-1]
+    shares = sum(last[f"time_share/{k}"] for k in ("simulation", "inference", "update"))
+    assert 0.5 < shares <= 1.0 + 1e-6
+    assert last["episodes"] > 0 and not math.isnan(last["mean_episode_reward"])
+    assert "step_reward/quad_tracking_lin_vel" in last
+    assert any(
+        not torch.equal(a, b) for a, b in zip(before, runner.estimator.parameters(), strict=True)
+    )
+    assert "steps/s" in capsys.readouterr().out
+    with (tmp_path / "progress.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == 2 and "episode_reward/quad_tracking_lin_vel" in rows[0]
+    assert (tmp_path / "training_curves.png").stat().st_size > 1000
+    assert (tmp_path / "model_2.pt").is_file()
+
+    resumed = OnPolicyRunner(TorchVecEnv(FakeSession(8)), cfg, tmp_path)
+    resumed.load(tmp_path / "model_latest.pt")
+    assert resumed.iteration == 2 and resumed.ppo.learning_rate == runner.ppo.learning_rate
+    for a, b in zip(
+        runner.actor_critic.parameters(), resumed.actor_critic.parameters(), strict=True
+    ):
+        assert torch.equal(a, b)
+    resumed.learn(1)
+    assert resumed.iteration == 3
+
+    out = tmp_path / "policy.onnx"
+    assert main(["export", "--checkpoint", str(tmp_path / "model_2.pt"), "--out", str(out)]) == 0
+    assert "max |onnx - torch|" in capsys.readouterr().out
+
+
+def test_rsl_rl_on_policy_runner_on_the_adapter():
+    torch.manual_seed(0)
+    env = RslRlVecEnv(TorchVecEnv(FakeSession(8)))
+    cfg = rsl_rl_train_cfg(num_steps_per_env=6, hidden_dims=(32, 16))
+    runner = RslOnPolicyRunner(env, cfg, log_dir=None, device="cpu")
+    runner.learn(num_learning_iterations=2)
+    assert runner.current_learning_iteration == 1

@@ -1,0 +1,31 @@
+#!/usr/bin/env bash
+# The main job on the embedded defaults: build the server, train the paper's policy briefly with
+# the Python learner (which starts a local server), export it to ONNX, evaluate it on the server
+# and write a rerun recording of a rollout. Installs what it needs; outputs go to runs/main/.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+source scripts/lib.sh
+
+OUT="${UNIGAIT_OUT:-runs/main}"
+ITERATIONS="${UNIGAIT_ITERATIONS:-30}"
+ENVS="${UNIGAIT_ENVS:-256}"
+
+ensure_rust_tools
+echo "== building the server (release)"
+cargo build --release --locked -p unigait-server -p unigait-client
+ensure_python_env viz
+export UNIGAIT_SERVER_BIN="$PWD/target/release/unigait-server"
+mkdir -p "$OUT"
+
+echo "== training: $ITERATIONS iterations x $ENVS envs x 24 steps (PPO + concurrent estimator)"
+"$VENV/bin/python" -m unigait train --iterations "$ITERATIONS" --num-envs "$ENVS" --log-dir "$OUT" --quiet
+echo "== exporting the fused estimator + actor to ONNX"
+"$VENV/bin/python" -m unigait export --checkpoint "$OUT/model_latest.pt" --out "$OUT/policy.onnx"
+echo "== evaluating on the server and recording a rollout"
+"$VENV/bin/python" -m unigait evaluate --policy "$OUT/policy.onnx" --scenario transition_biped_to_quad \
+  --num-envs 16 --report "$OUT/eval.json" --record "$OUT/rollout.rrd"
+
+echo
+echo "Training curves: $OUT/training.png (scalars in $OUT/*.csv); evaluation: $OUT/eval.json"
+echo "Open the rollout with the rerun viewer (rerun-sdk 0.36, installed in the venv):"
+echo "  $VENV/bin/rerun $OUT/rollout.rrd"

@@ -1,0 +1,165 @@
+//! The task's episode logic and observation layout on real rollouts.
+
+mod common;
+
+use std::f32::consts::TAU;
+
+use common::*;
+use unigait_sim::prelude::*;
+use unigait_sim::task::{OBSERVATION, PRIVILEGED, slice_of};
+
+fn obs_slice(out: &StepOutput, env: usize, name: &str) -> Vec<f32> {
+    let (offset, size) = slice_of(&OBSERVATION, name).expect("known slice");
+    out.obs[env * OBS_DIM + offset..env * OBS_DIM + offset + size].to_vec()
+}
+
+/// Each named slice of o_t holds what its name says (noise off).
+#[test]
+fn observation_slices_hold_what_they_name() {
+    for (biped_probability, mode) in [(1.0, TaskMode::Biped), (0.0, TaskMode::Quad)] {
+        let cfg = calm_config(&format!("modes.biped_probability = {biped_probability}"));
+        let mut env = batch(cfg, 3, 1, 1);
+        for _ in 0..7 {
+            env.step(&vec![0.0; 3 * NUM_JOINTS]).expect("step");
+        }
+        let out = env.output();
+        let state = env.env_state(1);
+        assert_eq!(state.mode, mode);
+        let one_hot = obs_slice(out, 1, "mode");
+        assert_eq!(one_hot, if mode == TaskMode::Biped { vec![1.0, 0.0] } else { vec![0.0, 1.0] });
+        // Phase after 7 steps of 0.02 s with T = 0.45 s.
+        let phase = (7.0 * 0.02 / 0.45f32).fract();
+        let offsets = if mode == TaskMode::Biped { [0.0, 0.5, 0.0, 0.0] } else { [0.0, 0.5, 0.5, 0.0] };
+        let clock = obs_slice(out, 1, "clock");
+        for f in 0..4 {
+            let expected = if mode == TaskMode::Biped && f >= 2 { 0.0 } else { (TAU * (phase + offsets[f])).sin() };
+            assert!((clock[f] - expected).abs() < 1e-5, "clock[{f}] {} vs {expected}", clock[f]);
+        }
+        assert_eq!(obs_slice(out, 1, "ratio"), vec![0.4, 0.6]);
+        let cmd = obs_slice(out, 1, "cmd");
+        let expected = [state.command[0] * 2.0, state.command[1] * 2.0, state.command[2] * 0.25];
+        assert_eq!(cmd, expected.to_vec());
+        // Standing level: gravity along -z in the base frame, pitch about 0.
+        let phi = obs_slice(out, 1, "phi");
+        assert!(phi[0].abs() < 0.05 && phi[1].abs() < 0.1 && (phi[2] + 1.0).abs() < 0.02, "phi {phi:?}");
+        let q = obs_slice(out, 1, "q");
+        let s = env.robot_state(1);
+        for j in 0..NUM_JOINTS {
+            assert!((q[j] - (s.q[j] - env.model().config.default_joint_pos[j])).abs() < 1e-6);
+        }
+        assert_eq!(obs_slice(out, 1, "last_action"), vec![0.0; 12]);
+    }
+}
+
+/// Commands change only every 10 s (or with the mode), modes only every 6 s.
+#[test]
+fn modes_and_commands_are_redrawn_on_schedule() {
+    let cfg = calm_config("[env]\nepisode_length_s = 30.0");
+    let n = 8;
+    let mut env = batch(cfg, n, 5, 1);
+    let mut last: Vec<_> = (0..n).map(|i| (env.env_state(i).mode, env.env_state(i).command)).collect();
+    let mut mode_changes = 0;
+    for step in 1..=1100u32 {
+        env.step(&vec![0.0; n * NUM_JOINTS]).expect("step");
+        for (i, prev) in last.iter_mut().enumerate() {
+            let s = env.env_state(i);
+            if env.output().terminated[i] == 1 {
+                *prev = (s.mode, s.command);
+                continue;
+            }
+            assert_eq!(s.episode_step, step, "env {i} restarted unexpectedly");
+            if s.mode != prev.0 {
+                assert_eq!(step % 300, 0, "env {i} changed mode at step {step}");
+                mode_changes += 1;
+            }
+            if s.command != prev.1 {
+                assert!(step % 500 == 0 || s.mode != prev.0, "env {i} changed command at step {step}");
+            }
+            *prev = (s.mode, s.command);
+        }
+    }
+    assert!(mode_changes > 0, "no mode ever changed");
+}
+
+/// Initial states and randomised values fall in their ranges and differ between envs.
+#[test]
+fn initial_states_and_randomisation_are_in_range_and_vary() {
+    let n = 32;
+    let env = batch(TaskConfig::embedded_default(), n, 11, 1);
+    let out = env.output();
+    let ranges: [(&str, f32, f32); 8] = [
+        ("friction", 0.2, 1.6),
+        ("payload", -1.0, 1.0),
+        ("com_offset", -0.01, 0.01),
+        ("joint_damping", 0.25, 0.35),
+        ("joint_friction", 0.005, 0.01),
+        ("armature", 0.015, 0.025),
+        ("kp_factor", 0.8, 1.2),
+        ("kd_factor", 0.8, 1.2),
+    ];
+    for (name, lo, hi) in ranges {
+        let (offset, size) = slice_of(&PRIVILEGED, name).expect("slice");
+        let mut seen = Vec::new();
+        for i in 0..n {
+            for k in 0..size {
+                let v = out.privileged[i * PRIVILEGED_DIM + offset + k];
+                assert!((lo..=hi).contains(&v), "{name} = {v} outside [{lo}, {hi}]");
+                seen.push(v);
+            }
+        }
+        seen.sort_by(f32::total_cmp);
+        seen.dedup();
+        assert!(seen.len() > n / 2, "{name} barely varies: {seen:?}");
+    }
+    let model = env.model();
+    for i in 0..n {
+        let s = env.robot_state(i);
+        let pitch = unigait_sim::task::euler_pitch(s.base_rot);
+        assert!((-1e-4..=1.3 + 1e-4).contains(&pitch), "pitch {pitch}");
+        for j in 0..NUM_JOINTS {
+            let offset = s.q[j] - model.config.default_joint_pos[j];
+            let bound = [0.2, 1.0, 0.6][j % 3] + 1e-4;
+            assert!(offset.abs() <= bound, "joint {j} offset {offset}");
+        }
+    }
+}
+
+/// Time-outs are truncations with the final observation kept; trunk contacts are terminations.
+#[test]
+fn termination_and_truncation_are_told_apart() {
+    let mut env = batch(calm_config("[env]\nepisode_length_s = 0.2"), 2, 1, 1);
+    let zeros = vec![0.0; 2 * NUM_JOINTS];
+    for step in 1..=10 {
+        env.step(&zeros).expect("step");
+        let out = env.output();
+        assert_eq!(out.terminated, vec![0, 0]);
+        assert_eq!(out.truncated, if step == 10 { vec![1, 1] } else { vec![0, 0] });
+    }
+    let out = env.output();
+    assert_eq!(out.episode_length, vec![10, 10]);
+    assert_ne!(out.final_obs[..OBS_DIM], out.obs[..OBS_DIM]);
+    assert_eq!(out.reward_terms[RewardTerm::Termination as usize], 0.0);
+
+    // Nose-first with limp joints: the head hits the ground.
+    let mut env = batch(calm_config("init.pitch = [1.5, 1.5]"), 4, 2, 1);
+    let mut terminated = false;
+    for _ in 0..100 {
+        env.step(&vec![0.0; 4 * NUM_JOINTS]).expect("step");
+        let out = env.output();
+        for i in 0..4 {
+            if out.terminated[i] == 1 {
+                terminated = true;
+                assert_eq!(out.truncated[i], 0);
+                let term = out.reward_terms[i * RewardTerm::COUNT + RewardTerm::Termination as usize];
+                assert!((term - (-0.02 * 0.02)).abs() < 1e-9, "termination term {term}");
+            }
+        }
+    }
+    assert!(terminated, "no robot hit its head");
+}
+
+/// The embedded TOML and the code's defaults agree (one source of defaults, checked).
+#[test]
+fn embedded_config_equals_code_defaults() {
+    assert_eq!(TaskConfig::embedded_default(), TaskConfig::default());
+}

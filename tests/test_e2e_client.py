@@ -1,0 +1,127 @@
+"""The Python client against the real server: round trip, spec, autoreset, errors, sharding."""
+
+import numpy as np
+import pytest
+from unigait.client import (
+    Client,
+    Session,
+    SessionConfig,
+    ShardedSession,
+    UnigaitError,
+    open_session,
+)
+
+SHORT = "[env]\nepisode_length_s = 0.1\nrandom_initial_episode_step = false\n"
+
+OBS_FIELDS = ["cmd", "phi", "omega", "q", "qdot", "last_action", "mode", "clock", "ratio"]
+LABEL_FIELDS = ["base_lin_vel", "foot_contact", "terrain_normal", "foot_height"]
+
+
+def test_round_trip_and_spec_slices(server):
+    with Client(server) as client:
+        info = client.server_info()
+        assert info.max_envs_per_session >= 8 and info.protocol_version
+        with client.create_session(SessionConfig(num_envs=8, seed=5)) as s:
+            spec = s.spec
+            assert spec.num_envs == 8 and spec.obs_dim == 53
+            assert spec.label_dim == 14 and spec.privileged_dim == 10
+            assert spec.obs.field_names == OBS_FIELDS
+            assert spec.labels.field_names == LABEL_FIELDS
+            assert spec.obs.slice("clock") == slice(47, 51)
+            assert len(spec.reward_terms) == 25 and "quad_tracking_lin_vel" in spec.reward_terms
+            assert spec.num_actions == 12 and spec.max_episode_steps == 900
+            assert spec.policy_dt == pytest.approx(0.02)
+            assert s.initial.obs.shape == (8, 53)
+            rng = np.random.default_rng(0)
+            for _ in range(3):
+                r = s.step(rng.uniform(-1, 1, (8, 12)).astype(np.float32))
+                assert r.obs.shape == (8, 53) and r.labels.shape == (8, 14)
+                assert r.privileged.shape == (8, 10) and r.reward.shape == (8,)
+                assert r.reward_terms is not None and r.reward_terms.shape == (8, 25)
+                assert np.isfinite(r.obs).all()
+            # The observed one-hot mode agrees with the mode tensor (1 biped, 2 quad).
+            one_hot = r.obs[:, spec.obs.slice("mode")]
+            np.testing.assert_array_equal(np.argmax(one_hot, axis=1) + 1, r.mode)
+            assert np.abs(r.obs[:, spec.obs.slice("clock")]).max() <= 1.0 + 1e-6
+            r = s.step_unary(np.zeros((8, 12), np.float32))
+            assert r.step_count == 4
+            mask = np.zeros(8, bool)
+            mask[2] = True
+            assert s.reset(mask).obs.shape == (8, 53)
+
+
+def test_same_seed_same_actions_same_results(server):
+    cfg = SessionConfig(num_envs=4, seed=11)
+    actions = np.random.default_rng(1).uniform(-1, 1, (5, 4, 12)).astype(np.float32)
+    runs = []
+    for _ in range(2):
+        with open_session(server, cfg) as s:
+            runs.append(np.stack([s.step(a).obs for a in actions]))
+    np.testing.assert_array_equal(runs[0], runs[1])
+
+
+def test_same_step_autoreset_carries_final_rows(server):
+    cfg = SessionConfig(num_envs=6, seed=2, task_overrides_toml=SHORT)
+    with open_session(server, cfg) as s:
+        assert s.spec.max_episode_steps == 5
+        seen = 0
+        for _ in range(5):
+            r = s.step(np.zeros((6, 12), np.float32))
+            k = len(r.final_env_ids)
+            assert r.final_obs.shape == (k, 53) and r.final_labels.shape == (k, 14)
+            assert r.final_privileged.shape == (k, 10) and r.final_episode_length.shape == (k,)
+            np.testing.assert_array_equal(np.sort(r.final_env_ids), np.flatnonzero(r.dones))
+            seen += k
+        # Every env has ended by step 5; the time-outs say so at exactly 5 steps.
+        timed_out = r.truncated & ~r.terminated
+        assert seen >= 6 and timed_out.any()
+        rows = np.isin(r.final_env_ids, np.flatnonzero(timed_out))
+        assert (r.final_episode_length[rows] == 5).all()
+        # The new episode's first observation is not the old episode's last one.
+        assert not np.array_equal(r.obs[r.final_env_ids], r.final_obs)
+
+
+def test_errors_map_to_status_codes(server):
+    with Client(server) as client:
+        s = client.create_session(SessionConfig(num_envs=4))
+        with pytest.raises(UnigaitError) as err:
+            s.step_unary(np.zeros((4, 11), np.float32))
+        assert err.value.code_name == "INVALID_ARGUMENT" and err.value.details
+        with pytest.raises(UnigaitError) as err:
+            s.step(np.zeros((3, 12), np.float32))
+        assert err.value.code_name == "INVALID_ARGUMENT"
+        with pytest.raises(UnigaitError) as err:
+            s.step_unary(np.full((4, 12), np.nan, np.float32))
+        assert err.value.code_name == "INVALID_ARGUMENT"
+        ghost = Session(client, "no-such-session", s.spec, s.initial)
+        with pytest.raises(UnigaitError) as err:
+            ghost.step_unary(np.zeros((4, 12), np.float32))
+        assert err.value.code_name == "NOT_FOUND"
+        with pytest.raises(UnigaitError) as err:
+            ghost.reset()
+        assert err.value.code_name == "NOT_FOUND"
+        with pytest.raises(UnigaitError) as err:
+            client.create_session(SessionConfig(num_envs=100_000))
+        assert err.value.code_name in ("RESOURCE_EXHAUSTED", "INVALID_ARGUMENT")
+        # The bad requests left the session usable.
+        assert s.step_unary(np.zeros((4, 12), np.float32)).obs.shape == (4, 53)
+        s.close()
+
+
+def test_sharding_across_two_servers(server, start_server):
+    second = start_server()
+    cfg = SessionConfig(num_envs=6, seed=20)
+    actions = np.random.default_rng(2).uniform(-1, 1, (4, 6, 12)).astype(np.float32)
+    with open_session([server, second], cfg) as sharded:
+        assert isinstance(sharded, ShardedSession) and sharded.counts == [3, 3]
+        got = [sharded.initial.obs] + [sharded.step(a).obs for a in actions]
+    # The same batch as two plain sessions seeded seed and seed + 1 on one server.
+    expected = []
+    with (
+        open_session(server, SessionConfig(num_envs=3, seed=20)) as a,
+        open_session(server, SessionConfig(num_envs=3, seed=21)) as b,
+    ):
+        expected.append(np.concatenate([a.initial.obs, b.initial.obs]))
+        for act in actions:
+            expected.append(np.concatenate([a.step(act[:3]).obs, b.step(act[3:]).obs]))
+    np.testing.assert_array_equal(np.stack(got), np.stack(expected))
