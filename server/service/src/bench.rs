@@ -37,9 +37,13 @@ pub struct BenchArgs {
     /// Bare physics (no observations, rewards or episodes).
     #[arg(long)]
     pub physics_only: bool,
-    /// Terrain: flat.
+    /// Terrain: flat, curriculum (the mixed grid), or one type pinned at `--level`
+    /// (slope_up, slope_down, rough_slope, stairs_up, stairs_down, obstacles).
     #[arg(long, default_value = "flat")]
     pub terrain: String,
+    /// Level of a pinned terrain type (0 .. 9), or the highest starting level of the curriculum.
+    #[arg(long, default_value_t = 0)]
+    pub level: u32,
     /// Seed.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
@@ -82,13 +86,6 @@ pub struct BenchReport {
     pub wall_s: f64,
 }
 
-fn terrain_from_name(name: &str) -> Result<Terrain> {
-    match name {
-        "flat" => Ok(Terrain::Flat),
-        other => anyhow::bail!("unknown terrain `{other}` (known: flat)"),
-    }
-}
-
 /// Run the benchmark.
 pub fn run(args: &BenchArgs) -> Result<BenchReport> {
     let threads = if args.threads == 0 {
@@ -102,7 +99,11 @@ pub fn run(args: &BenchArgs) -> Result<BenchReport> {
         config = config.with_overrides(o)?;
     }
     let decimation = config.env.decimation;
-    let terrain = Arc::new(terrain_from_name(&args.terrain)?);
+    let selection = unigait_proto::v1::TerrainConfig {
+        kind: args.terrain.clone(),
+        level: args.level,
+    };
+    let (terrain, _) = crate::terrain::terrain_for(Some(&selection), args.seed)?;
     let options = VecEnvOptions {
         num_envs: args.envs,
         seed: args.seed,

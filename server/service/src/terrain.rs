@@ -3,20 +3,52 @@
 use std::sync::Arc;
 
 use unigait_proto::v1::TerrainConfig;
-use unigait_sim::terrain::Terrain;
+use unigait_sim::terrain::{Terrain, TerrainKind, TerrainSpec, TerrainType};
 
 use crate::error::ServiceError;
 
-/// The terrain a session asked for, with its display name.
+/// Highest starting level of the curriculum when the config leaves it at 0 (legged_gym: 5).
+const DEFAULT_MAX_INIT_LEVEL: u32 = 5;
+
+/// The terrain a session asked for, with its display name. The grid is generated from the
+/// session seed, so sessions with the same config and seed see the same terrain.
 pub fn terrain_for(
     config: Option<&TerrainConfig>,
-    _seed: u64,
+    seed: u64,
 ) -> Result<(Arc<Terrain>, String), ServiceError> {
-    let kind = config.map(|c| c.kind.as_str()).unwrap_or("");
-    match kind {
-        "" | "flat" => Ok((Arc::new(Terrain::Flat), "flat".into())),
-        other => Err(ServiceError::InvalidArgument(format!(
-            "unknown terrain kind `{other}`; known: flat"
-        ))),
-    }
+    let (kind, level) = config.map_or(("", 0), |c| (c.kind.as_str(), c.level));
+    let spec_kind = match kind {
+        "" | "flat" => return Ok((Arc::new(Terrain::Flat), "flat".into())),
+        "curriculum" => TerrainKind::Curriculum {
+            max_init_level: if level == 0 {
+                DEFAULT_MAX_INIT_LEVEL
+            } else {
+                level
+            },
+        },
+        name => match TerrainType::from_name(name) {
+            Some(terrain_type) => TerrainKind::Pinned {
+                terrain_type,
+                level,
+            },
+            None => {
+                let known: Vec<&str> = TerrainType::ALL.iter().map(|t| t.name()).collect();
+                return Err(ServiceError::InvalidArgument(format!(
+                    "unknown terrain kind `{name}`; known: flat, curriculum, {}",
+                    known.join(", ")
+                )));
+            }
+        },
+    };
+    let spec = TerrainSpec {
+        kind: spec_kind,
+        ..TerrainSpec::default()
+    };
+    let terrain = Terrain::from_spec(&spec, seed)?;
+    let name = if kind == "curriculum" {
+        "curriculum".to_string()
+    } else {
+        format!("{kind} level {level}")
+    };
+    Ok((Arc::new(terrain), name))
 }

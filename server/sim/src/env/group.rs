@@ -132,6 +132,7 @@ impl EnvGroup {
     pub fn reset_env(&mut self, sh: &Shared, slot: usize, first: bool) {
         let cfg = &sh.ctx.config;
         let model = sh.model;
+        let previous = self.states[slot];
         let env = &mut self.envs[slot];
         env.randomization = Randomization::sample(&cfg.randomization, &model.config, &mut env.rng);
         let params = env.randomization.physical_params(&model.config);
@@ -171,7 +172,31 @@ impl EnvGroup {
             .iter()
             .map(|(b, c, r)| (rot * local[*b].transform_point(*c)).z - r)
             .fold(0.0f32, f32::min);
-        let (x, y) = sh.terrain.env_origin(env.id.index(), sh.num_envs);
+        let (x, y) = match sh.terrain.grid() {
+            None => sh.terrain.env_origin(env.id.index(), sh.num_envs),
+            Some(grid) => {
+                if first {
+                    let (level, column) =
+                        sh.terrain
+                            .initial_tile(env.id.index(), sh.num_envs, &mut env.rng);
+                    env.terrain_level = level;
+                    env.terrain_type = column;
+                } else if previous.is_finite() {
+                    // legged_gym's curriculum: judge the episode that just ended by how far the
+                    // robot got from its spawn point against what its command asked for.
+                    let walked = (previous.base_pos.truncate()
+                        - rapier3d::math::Vec2::from(env.origin))
+                    .length();
+                    let commanded =
+                        (env.command[0].hypot(env.command[1])) * cfg.env.episode_length_s;
+                    env.terrain_level =
+                        sh.terrain
+                            .next_level(env.terrain_level, walked, commanded, &mut env.rng);
+                }
+                let o = grid.tile_origin(env.terrain_level, env.terrain_type);
+                (o.x, o.y)
+            }
+        };
         let ground = sh.terrain.max_height_within(x, y, 0.6);
         let base = Pose::from_parts(Vec3::new(x, y, ground - lowest + init.spawn_clearance), rot);
         self.world
