@@ -1,0 +1,396 @@
+//! The curriculum terrain: its shapes against the generator's analytic geometry, robots resting
+//! on every tile in rapier, the curriculum rule, and (ignored) a speed benchmark.
+
+mod common;
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use common::*;
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rapier3d::math::{Pose, Rotation, Vec3};
+use unigait_sim::physics::{PhysicsParams, RobotPhysicalParams, RobotState, RobotWorld};
+use unigait_sim::prelude::*;
+use unigait_sim::terrain::{TerrainCollider, TerrainKind, TerrainSpec, TerrainType};
+
+/// A curriculum spec whose deterministic spawn tiles cover levels `0..=max_init_level`.
+fn curriculum(max_init_level: u32) -> TerrainSpec {
+    TerrainSpec {
+        kind: TerrainKind::Curriculum { max_init_level },
+        ..TerrainSpec::default()
+    }
+}
+
+fn batch_on(terrain: Terrain, config: TaskConfig, n: usize, seed: u64) -> VecEnv {
+    let options = VecEnvOptions {
+        num_envs: n,
+        seed,
+        threads: 1,
+        physics_only: false,
+        autoreset: true,
+    };
+    VecEnv::new(
+        Arc::new(RobotModel::go2()),
+        config,
+        Arc::new(terrain),
+        options,
+    )
+    .expect("batch builds")
+}
+
+/// Step `env` with zero actions for `steps` policy steps; panic on any termination.
+fn stand(env: &mut VecEnv, steps: usize) {
+    let zeros = vec![0.0; env.num_envs() * NUM_JOINTS];
+    for step in 0..steps {
+        let out = env.step(&zeros).expect("step");
+        if let Some(i) = out.terminated.iter().position(|t| *t != 0) {
+            let o = env.env_state(i).origin;
+            panic!("env {i} (spawned at {o:?}) terminated at step {step}");
+        }
+    }
+}
+
+/// The base height above the terrain under it, for every env.
+fn base_heights(env: &VecEnv) -> Vec<f32> {
+    (0..env.num_envs())
+        .map(|i| {
+            let p = env.robot_state(i).base_pos;
+            p.z - env.terrain().height(p.x, p.y)
+        })
+        .collect()
+}
+
+/// A robot standing (zero actions, 2 s) on the spawn platform of every tile of every level rests
+/// there: no termination, base 0.2-0.35 m above the terrain under it.
+#[test]
+fn robots_rest_on_every_tile() {
+    let terrain = Terrain::from_spec(&curriculum(9), 3).expect("terrain");
+    // 70 envs: 10 per column, on levels 0..=9 (see `TerrainGrid::deterministic_tile`).
+    let mut env = batch_on(terrain, calm_config(""), 70, 0);
+    stand(&mut env, 100);
+    for (i, h) in base_heights(&env).into_iter().enumerate() {
+        let o = env.env_state(i).origin;
+        assert!(
+            (0.2..=0.35).contains(&h),
+            "env {i} at {o:?}: base {h} m above the terrain"
+        );
+    }
+    assert!(env.max_joint_gap() < 5e-3);
+}
+
+/// A robot placed on tile (`terrain_type`, `level`) at `base_x_in_tile` along the tile's centre
+/// line, heading `yaw` and pitched nose-up by `pitch`, held at the default pose for 2.5 s directly in
+/// a physics world: it comes to rest with every foot loaded on the tread (or face) it was put on
+/// and the trunk clear of the terrain, no foot more than `max_drop` (m) lower than it started.
+fn rest_on_tile(
+    terrain_type: TerrainType,
+    level: u32,
+    base_x_in_tile: f32,
+    yaw: f32,
+    pitch: f32,
+    max_drop: f32,
+) {
+    let spec = curriculum(9);
+    let terrain = Terrain::from_spec(&spec, 3).expect("terrain");
+    let model = RobotModel::go2();
+    let mut world = RobotWorld::new(&model, 1, terrain.collider(), &PhysicsParams::default());
+    let q0: [f32; NUM_JOINTS] = std::array::from_fn(|j| model.config.default_joint_pos[j]);
+    let column = spec.column_of(terrain_type).expect("on the grid") as f32;
+    let (x, y) = (level as f32 * 8.0 + base_x_in_tile, (column + 0.5) * 8.0);
+    let feet_at = |base: Pose| {
+        let local = model.forward_kinematics(&q0);
+        model
+            .feet
+            .each_ref()
+            .map(|f| (base * local[f.body]).transform_point(f.offset))
+    };
+    // Heading `yaw`, nose up by `pitch`; lowered until the lowest foot is 5 mm above its ground.
+    let rot = Rotation::from_rotation_z(yaw) * Rotation::from_rotation_y(-pitch);
+    let clearance = |base: Pose| {
+        feet_at(base)
+            .iter()
+            .zip(&model.feet)
+            .map(|(p, f)| p.z - f.radius - terrain.height(p.x, p.y))
+            .fold(f32::INFINITY, f32::min)
+    };
+    let probe = Pose::from_parts(Vec3::new(x, y, 5.0), rot);
+    let z = 5.0 - clearance(probe) + 0.005;
+    let base = Pose::from_parts(Vec3::new(x, y, z), rot);
+    world.set_robot_state(&model, 0, base, Vec3::ZERO, Vec3::ZERO, &q0);
+    let start = feet_at(base);
+    let actuators = [RobotPhysicalParams::nominal(&model).actuator];
+    let mut torques = [0.0; NUM_JOINTS];
+    let mut states = [RobotState::default()];
+    for _ in 0..500 {
+        world.step(&model, &q0, &actuators, &mut torques);
+        world.read_states(&model, &mut states);
+        assert_eq!(
+            states[0].trunk_force, 0.0,
+            "{terrain_type}: the trunk touched"
+        );
+    }
+    let s = &states[0];
+    assert!(
+        s.base_linvel.length() < 0.02,
+        "{terrain_type}: moving at {:?}",
+        s.base_linvel
+    );
+    for (f, (p, p0)) in s.foot_pos.iter().zip(&start).enumerate() {
+        let gap = p.z - model.feet[f].radius - terrain.height(p.x, p.y);
+        assert!(
+            gap.abs() < 5e-3,
+            "{terrain_type}: foot {f} {gap} m off its ground"
+        );
+        // The robot settles into its soft (kp 20) stance, which draws the feet in a little, but
+        // no foot slips down a step (or far down a face).
+        let drop = terrain.height(p.x, p.y) - terrain.height(p0.x, p0.y);
+        assert!(
+            drop.abs() < max_drop,
+            "{terrain_type}: foot {f} moved {drop} m down"
+        );
+        assert!(
+            s.foot_force[f] > 1.0,
+            "{terrain_type}: foot {f} carries nothing"
+        );
+    }
+    assert!(s.max_joint_gap < 5e-3);
+}
+
+/// Climbing across a 0.15 m stair edge (level 5) of both staircases, the front feet 0.2 m onto
+/// the upper tread and the rear feet on the tread below, and climbing a 16.7 deg slope face.
+#[test]
+fn robots_rest_across_stair_edges_and_on_slopes() {
+    use std::f32::consts::PI;
+    let step = TerrainSpec::default().step_height_at(5);
+    // Feet 0.448 m apart front to rear, the front ones 0.176 m ahead of the base.
+    let lean = (step / 0.448).atan();
+    // Stairs down (a hill): from the tile's -x edge inwards is up; the riser at 0.9 m.
+    rest_on_tile(
+        TerrainType::StairsDown,
+        5,
+        0.9 + 0.2 - 0.176,
+        0.0,
+        lean,
+        0.02,
+    );
+    // Stairs up (a pit): outwards is up; facing -x, the riser at 0.9 m.
+    rest_on_tile(TerrainType::StairsUp, 5, 0.9 - 0.2 + 0.176, PI, lean, 0.02);
+    // The hill's -x face at level 5: settling draws the front feet 0.18 m back down the face.
+    let slope = TerrainSpec::default().slope(5).atan();
+    rest_on_tile(TerrainType::SlopeDown, 5, 1.5, 0.0, slope, 0.08);
+}
+
+/// The public queries on a generated grid: a 30 degree face, a stair edge, the highest point
+/// within a radius, determinism.
+#[test]
+fn grid_queries_through_the_terrain() {
+    let spec = curriculum(5);
+    let terrain = Terrain::from_spec(&spec, 3).expect("terrain");
+    let grid = terrain.grid().expect("a grid");
+    let column = |t| spec.column_of(t).expect("on the grid") as f32;
+    // Top-level hill, 2 m from the centre along +x: 30 degrees.
+    let (x, y) = (
+        9.0 * 8.0 + 6.0,
+        (column(TerrainType::SlopeDown) + 0.5) * 8.0,
+    );
+    let tilt = terrain.normal(x, y).z.acos().to_degrees();
+    assert!((tilt - 30.0).abs() < 0.01, "tilt {tilt}");
+    // Level 5 stairs: 0.15 m steps, the third riser 0.9 m in from the tile edge.
+    let (x, y) = (
+        5.0 * 8.0 + 0.9,
+        (column(TerrainType::StairsDown) + 0.5) * 8.0,
+    );
+    let rise = terrain.height(x + 1e-3, y) - terrain.height(x - 1e-3, y);
+    assert!((rise - 0.15).abs() < 1e-5, "rise {rise}");
+    assert_eq!(terrain.height(x - 0.15, y), terrain.height(x - 0.05, y));
+    // 2 cm before the riser: a 3 cm radius sees the upper tread, a 1 cm one does not.
+    let lower = terrain.height(x - 0.02, y);
+    assert!((terrain.max_height_within(x - 0.02, y, 0.03) - (lower + 0.15)).abs() < 1e-5);
+    assert_eq!(terrain.max_height_within(x - 0.02, y, 0.01), lower);
+    // Same seed, same terrain; the flat kind is the half-space.
+    assert_eq!(Terrain::from_spec(&spec, 3).expect("terrain"), terrain);
+    assert!(grid.tile_origin(0, 0).z.abs() < 1e-6);
+    assert_eq!(
+        Terrain::from_spec(&TerrainSpec::default(), 3).expect("flat"),
+        Terrain::Flat
+    );
+}
+
+/// The curriculum through the public API: up after more than half a tile, down after less than
+/// half the commanded distance, unchanged on flat ground and pinned tiles.
+#[test]
+fn curriculum_levels_move_by_the_rule() {
+    let mut rng = ChaCha8Rng::seed_from_u64(0);
+    let grid = Terrain::from_spec(&curriculum(5), 0).expect("terrain");
+    assert_eq!(grid.next_level(4, 4.5, 10.0, &mut rng), 5);
+    assert_eq!(grid.next_level(4, 3.0, 10.0, &mut rng), 3);
+    assert_eq!(grid.next_level(4, 3.0, 5.0, &mut rng), 4);
+    assert_eq!(grid.next_level(0, 0.0, 10.0, &mut rng), 0);
+    assert!(grid.next_level(9, 5.0, 0.0, &mut rng) < 10);
+    assert_eq!(Terrain::Flat.next_level(4, 4.5, 10.0, &mut rng), 4);
+    let pinned = TerrainSpec {
+        kind: TerrainKind::Pinned {
+            terrain_type: TerrainType::StairsUp,
+            level: 5,
+        },
+        ..TerrainSpec::default()
+    };
+    let pinned = Terrain::from_spec(&pinned, 0).expect("terrain");
+    assert_eq!(pinned.next_level(5, 4.5, 10.0, &mut rng), 5);
+    assert_eq!(pinned.initial_tile(0, 10, &mut rng), (5, 4));
+}
+
+/// The terrain called `name`: `flat`, `trimesh` or `heightfield:<subdivisions>`, on a
+/// curriculum grid spawning on levels `0..=max_init_level`, or on the one tile of `pinned`
+/// (`<type>:<level>`) if given.
+fn bench_terrain(name: &str, max_init_level: u32, pinned: Option<&str>) -> Terrain {
+    if name == "flat" {
+        return Terrain::Flat;
+    }
+    let mut spec = curriculum(max_init_level);
+    if let Some((terrain_type, level)) = pinned.and_then(|p| p.split_once(':')) {
+        spec.kind = TerrainKind::Pinned {
+            terrain_type: TerrainType::from_name(terrain_type).expect("terrain type"),
+            level: level.parse().expect("level"),
+        };
+    }
+    if let Some(("heightfield", k)) = name.split_once(':') {
+        spec.collider = TerrainCollider::Heightfield {
+            subdivisions: k.parse().expect("subdivisions"),
+        };
+    }
+    Terrain::from_spec(&spec, 1).expect("terrain")
+}
+
+/// Env steps per second of 512 envs on one thread under random actions (as `unigait-server
+/// bench`: 20 warm-up steps, then 200 timed), and the worst joint gap, for each terrain of
+/// `UNIGAIT_TERRAINS` (comma-separated names of [`bench_terrain`], default `flat,trimesh`).
+/// The batches are stepped in turns of 10 steps, so load from other processes hits them alike.
+/// `UNIGAIT_MAX_INIT_LEVEL` sets the highest spawn level (default 9: every level);
+/// `UNIGAIT_PINNED=<type>:<level>` puts every env on one tile.
+/// Run: `cargo test --release -p unigait-sim --test terrain -- --ignored --nocapture bench`.
+#[test]
+#[ignore]
+fn bench_terrain_speed() {
+    let names = std::env::var("UNIGAIT_TERRAINS").unwrap_or_else(|_| "flat,trimesh".into());
+    let max_init_level = std::env::var("UNIGAIT_MAX_INIT_LEVEL")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(9);
+    let pinned = std::env::var("UNIGAIT_PINNED").ok();
+    let (n, steps, turn) = (512, 200, 10);
+    let mut rng = ChaCha8Rng::seed_from_u64(1);
+    let pool: Vec<Vec<f32>> = (0..16)
+        .map(|_| {
+            (0..n * NUM_JOINTS)
+                .map(|_| rng.random_range(-1.0..=1.0))
+                .collect()
+        })
+        .collect();
+    struct Run {
+        name: String,
+        env: VecEnv,
+        gap: f32,
+        wall: f64,
+        cpu: f64,
+    }
+    let mut runs: Vec<Run> = names
+        .split(',')
+        .map(|name| {
+            let terrain = bench_terrain(name, max_init_level, pinned.as_deref());
+            let mut env = batch_on(terrain, TaskConfig::embedded_default(), n, 1);
+            let mut gap: f32 = 0.0;
+            for i in 0..20 {
+                env.step(&pool[i % pool.len()]).expect("step");
+                gap = gap.max(env.max_joint_gap());
+            }
+            Run {
+                name: name.to_owned(),
+                env,
+                gap,
+                wall: 0.0,
+                cpu: 0.0,
+            }
+        })
+        .collect();
+    for first in (0..steps).step_by(turn) {
+        for run in &mut runs {
+            let (start, cpu_start) = (Instant::now(), process_cpu_seconds());
+            for i in first..first + turn {
+                run.env.step(&pool[i % pool.len()]).expect("step");
+                run.gap = run.gap.max(run.env.max_joint_gap());
+            }
+            run.wall += start.elapsed().as_secs_f64();
+            run.cpu += process_cpu_seconds() - cpu_start;
+        }
+    }
+    for run in &runs {
+        println!(
+            "{{\"terrain\":\"{}\",\"pinned\":\"{}\",\"max_init_level\":{max_init_level},\"env_steps_per_sec_per_thread\":{:.0},\"env_steps_per_cpu_sec\":{:.0},\"max_joint_gap_m\":{:.5},\"nonfinite_resets\":{}}}",
+            run.name,
+            pinned.as_deref().unwrap_or(""),
+            (n * steps) as f64 / run.wall,
+            (n * steps) as f64 / run.cpu,
+            run.gap,
+            run.env.nonfinite_resets()
+        );
+    }
+}
+
+/// CPU time of this process so far (s), from /proc (0 where unavailable): steadier than wall
+/// time on a shared machine.
+fn process_cpu_seconds() -> f64 {
+    let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else {
+        return 0.0;
+    };
+    // Fields after the command name (which may hold spaces) start after the last ')'.
+    let fields: Vec<&str> = stat
+        .rsplit_once(')')
+        .map(|(_, rest)| rest.split_whitespace().collect())
+        .unwrap_or_default();
+    // utime and stime are fields 14 and 15 of the line: 11 and 12 counted from the state.
+    let ticks: f64 = [11, 12]
+        .iter()
+        .filter_map(|&k| fields.get(k).and_then(|v| v.parse::<f64>().ok()))
+        .sum();
+    ticks / 100.0
+}
+
+#[test]
+#[ignore]
+fn zz_debug_gap() {
+    let p = std::env::var("UNIGAIT_PINNED").unwrap_or("stairs_up:9".into());
+    let terrain = bench_terrain("trimesh", 9, Some(&p));
+    let n = 512;
+    let mut env = batch_on(terrain, TaskConfig::embedded_default(), n, 1);
+    let mut rng = ChaCha8Rng::seed_from_u64(1);
+    let pool: Vec<Vec<f32>> = (0..16)
+        .map(|_| {
+            (0..n * NUM_JOINTS)
+                .map(|_| rng.random_range(-1.0..=1.0))
+                .collect()
+        })
+        .collect();
+    for i in 0..220 {
+        env.step(&pool[i % pool.len()]).expect("step");
+        for e in 0..n {
+            let s = env.robot_state(e);
+            if s.max_joint_gap > 0.0042 {
+                let o = env.env_state(e).origin;
+                let t = env.terrain();
+                println!(
+                    "step {i} env {e} gap {:.4} base rel ({:.2},{:.2}) z-ground {:.3} trunk {:.1} pen {} other {} feet-ground {:?}",
+                    s.max_joint_gap,
+                    s.base_pos.x - o[0],
+                    s.base_pos.y - o[1],
+                    s.base_pos.z - t.height(s.base_pos.x, s.base_pos.y),
+                    s.trunk_force,
+                    s.penalised_contacts,
+                    s.other_contacts,
+                    s.foot_pos.map(|p| p.z - t.height(p.x, p.y))
+                );
+            }
+        }
+    }
+}
