@@ -26,22 +26,48 @@ fn observation_slices_hold_what_they_name() {
         let state = env.env_state(1);
         assert_eq!(state.mode, mode);
         let one_hot = obs_slice(out, 1, "mode");
-        assert_eq!(one_hot, if mode == TaskMode::Biped { vec![1.0, 0.0] } else { vec![0.0, 1.0] });
+        assert_eq!(
+            one_hot,
+            if mode == TaskMode::Biped {
+                vec![1.0, 0.0]
+            } else {
+                vec![0.0, 1.0]
+            }
+        );
         // Phase after 7 steps of 0.02 s with T = 0.45 s.
         let phase = (7.0 * 0.02 / 0.45f32).fract();
-        let offsets = if mode == TaskMode::Biped { [0.0, 0.5, 0.0, 0.0] } else { [0.0, 0.5, 0.5, 0.0] };
+        let offsets = if mode == TaskMode::Biped {
+            [0.0, 0.5, 0.0, 0.0]
+        } else {
+            [0.0, 0.5, 0.5, 0.0]
+        };
         let clock = obs_slice(out, 1, "clock");
         for f in 0..4 {
-            let expected = if mode == TaskMode::Biped && f >= 2 { 0.0 } else { (TAU * (phase + offsets[f])).sin() };
-            assert!((clock[f] - expected).abs() < 1e-5, "clock[{f}] {} vs {expected}", clock[f]);
+            let expected = if mode == TaskMode::Biped && f >= 2 {
+                0.0
+            } else {
+                (TAU * (phase + offsets[f])).sin()
+            };
+            assert!(
+                (clock[f] - expected).abs() < 1e-5,
+                "clock[{f}] {} vs {expected}",
+                clock[f]
+            );
         }
         assert_eq!(obs_slice(out, 1, "ratio"), vec![0.4, 0.6]);
         let cmd = obs_slice(out, 1, "cmd");
-        let expected = [state.command[0] * 2.0, state.command[1] * 2.0, state.command[2] * 0.25];
+        let expected = [
+            state.command[0] * 2.0,
+            state.command[1] * 2.0,
+            state.command[2] * 0.25,
+        ];
         assert_eq!(cmd, expected.to_vec());
         // Standing level: gravity along -z in the base frame, pitch about 0.
         let phi = obs_slice(out, 1, "phi");
-        assert!(phi[0].abs() < 0.05 && phi[1].abs() < 0.1 && (phi[2] + 1.0).abs() < 0.02, "phi {phi:?}");
+        assert!(
+            phi[0].abs() < 0.05 && phi[1].abs() < 0.1 && (phi[2] + 1.0).abs() < 0.02,
+            "phi {phi:?}"
+        );
         let q = obs_slice(out, 1, "q");
         let s = env.robot_state(1);
         for j in 0..NUM_JOINTS {
@@ -57,7 +83,9 @@ fn modes_and_commands_are_redrawn_on_schedule() {
     let cfg = calm_config("[env]\nepisode_length_s = 30.0");
     let n = 8;
     let mut env = batch(cfg, n, 5, 1);
-    let mut last: Vec<_> = (0..n).map(|i| (env.env_state(i).mode, env.env_state(i).command)).collect();
+    let mut last: Vec<_> = (0..n)
+        .map(|i| (env.env_state(i).mode, env.env_state(i).command))
+        .collect();
     let mut mode_changes = 0;
     for step in 1..=1100u32 {
         env.step(&vec![0.0; n * NUM_JOINTS]).expect("step");
@@ -73,7 +101,10 @@ fn modes_and_commands_are_redrawn_on_schedule() {
                 mode_changes += 1;
             }
             if s.command != prev.1 {
-                assert!(step % 500 == 0 || s.mode != prev.0, "env {i} changed command at step {step}");
+                assert!(
+                    step % 500 == 0 || s.mode != prev.0,
+                    "env {i} changed command at step {step}"
+                );
             }
             *prev = (s.mode, s.command);
         }
@@ -133,7 +164,10 @@ fn termination_and_truncation_are_told_apart() {
         env.step(&zeros).expect("step");
         let out = env.output();
         assert_eq!(out.terminated, vec![0, 0]);
-        assert_eq!(out.truncated, if step == 10 { vec![1, 1] } else { vec![0, 0] });
+        assert_eq!(
+            out.truncated,
+            if step == 10 { vec![1, 1] } else { vec![0, 0] }
+        );
     }
     let out = env.output();
     assert_eq!(out.episode_length, vec![10, 10]);
@@ -150,8 +184,12 @@ fn termination_and_truncation_are_told_apart() {
             if out.terminated[i] == 1 {
                 terminated = true;
                 assert_eq!(out.truncated[i], 0);
-                let term = out.reward_terms[i * RewardTerm::COUNT + RewardTerm::Termination as usize];
-                assert!((term - (-0.02 * 0.02)).abs() < 1e-9, "termination term {term}");
+                let term =
+                    out.reward_terms[i * RewardTerm::COUNT + RewardTerm::Termination as usize];
+                assert!(
+                    (term - (-0.02 * 0.02)).abs() < 1e-9,
+                    "termination term {term}"
+                );
             }
         }
     }
