@@ -144,7 +144,12 @@ impl VecEnv {
         }
     }
 
-    fn reset_all(&mut self, first: bool) {
+    /// Run `work(shared, group, its output rows, its first env index)` on every group in
+    /// parallel on the worker pool.
+    fn for_each_group(
+        &mut self,
+        work: impl Fn(&Shared, &mut EnvGroup, &mut super::OutputChunk, usize) + Sync,
+    ) {
         let epw = self.ctx.config.env.envs_per_world;
         let sh = Shared {
             model: &self.model,
@@ -159,8 +164,13 @@ impl VecEnv {
             groups
                 .par_iter_mut()
                 .zip(chunks)
-                .for_each(|(g, mut chunk)| g.reset_all(&sh, first, &mut chunk));
+                .enumerate()
+                .for_each(|(i, (g, mut chunk))| work(&sh, g, &mut chunk, i * epw));
         });
+    }
+
+    fn reset_all(&mut self, first: bool) {
+        self.for_each_group(|sh, g, chunk, _| g.reset_all(sh, first, chunk));
     }
 
     /// Reset every env (a new episode everywhere) and return the first observations.
@@ -181,45 +191,21 @@ impl VecEnv {
             });
         }
         let epw = self.ctx.config.env.envs_per_world;
-        let sh = Shared {
-            model: &self.model,
-            ctx: &self.ctx,
-            terrain: &self.terrain,
-            num_envs: n,
-            physics_only: self.options.physics_only,
-        };
-        let chunks = self.out.chunks_mut(epw);
-        let groups = &mut self.groups;
-        self.pool.install(|| {
-            groups
-                .par_iter_mut()
-                .zip(chunks)
-                .zip(mask.par_chunks(epw))
-                .for_each(|((g, mut chunk), m)| g.reset_masked(&sh, m, &mut chunk));
+        self.for_each_group(|sh, g, chunk, first| {
+            g.reset_masked(sh, &mask[first..(first + epw).min(n)], chunk)
         });
         Ok(&self.out)
     }
 
     /// Step every env with `actions` ([num_envs, 12], row-major).
     pub fn step(&mut self, actions: &[f32]) -> Result<&StepOutput, SimError> {
-        validate_actions(actions, self.options.num_envs)?;
+        let n = self.options.num_envs;
+        validate_actions(actions, n)?;
         let epw = self.ctx.config.env.envs_per_world;
         let autoreset = self.options.autoreset;
-        let sh = Shared {
-            model: &self.model,
-            ctx: &self.ctx,
-            terrain: &self.terrain,
-            num_envs: self.options.num_envs,
-            physics_only: self.options.physics_only,
-        };
-        let chunks = self.out.chunks_mut(epw);
-        let groups = &mut self.groups;
-        self.pool.install(|| {
-            groups
-                .par_iter_mut()
-                .zip(chunks)
-                .zip(actions.par_chunks(epw * NUM_JOINTS))
-                .for_each(|((g, mut chunk), a)| g.step(&sh, a, autoreset, &mut chunk));
+        self.for_each_group(|sh, g, chunk, first| {
+            let rows = &actions[first * NUM_JOINTS..(first + epw).min(n) * NUM_JOINTS];
+            g.step(sh, rows, autoreset, chunk);
         });
         Ok(&self.out)
     }
