@@ -5,6 +5,7 @@
 mod client;
 pub mod compliance;
 mod error;
+pub mod eval;
 
 pub use client::{Client, MAX_MESSAGE_BYTES, Session, Spec, Step, StepStream};
 pub use error::ClientError;

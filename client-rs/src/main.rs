@@ -41,6 +41,10 @@ enum Command {
     Bench(BenchArgs),
     /// Run the protocol compliance suite against the server.
     Check,
+    /// Evaluate an ONNX policy on one of the paper's scenarios (server-side rollouts).
+    Eval(unigait_client::eval::EvalArgs),
+    /// Evaluate a policy and save a rerun recording of the rollout.
+    Record(unigait_client::eval::RecordArgs),
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum, Serialize, PartialEq, Eq)]
@@ -177,6 +181,12 @@ async fn main() -> Result<()> {
             } else {
                 println!("{}", serde_json::to_string_pretty(&report)?);
             }
+        }
+        Command::Eval(args) => {
+            unigait_client::eval::run_eval(&mut client, cli.token.as_deref(), &args).await?
+        }
+        Command::Record(args) => {
+            unigait_client::eval::run_record(&mut client, cli.token.as_deref(), &args).await?
         }
         Command::Check => {
             let outcomes = compliance::run_all(&client).await;

@@ -5,6 +5,7 @@
 pub mod bench;
 mod convert;
 mod error;
+mod evaluate;
 mod limits;
 mod server;
 mod service;
@@ -12,5 +13,6 @@ mod session;
 mod terrain;
 
 pub use error::ServiceError;
+pub use evaluate::EvaluateContext;
 pub use limits::Limits;
 pub use server::{ServeError, ServeOptions, is_loopback, serve, shutdown_signal};

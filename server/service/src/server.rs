@@ -14,8 +14,10 @@ use tonic::{Request, Status};
 use tracing::info;
 use unigait_proto::v1::simulator_server::SimulatorServer;
 use unigait_sim::env::worker_pool;
+use unigait_sim::robot::RobotModel;
 use unigait_sim::task::TaskConfig;
 
+use crate::evaluate::EvaluateContext;
 use crate::limits::Limits;
 use crate::service::SimulatorService;
 use crate::session::Sessions;
@@ -79,13 +81,19 @@ pub async fn serve(
     shutdown: impl Future<Output = ()> + Send,
 ) -> Result<(), ServeError> {
     let pool = worker_pool(options.threads)?;
+    let evaluation = Arc::new(EvaluateContext {
+        base_config: options.base_config.clone(),
+        model: Arc::new(RobotModel::go2()),
+        pool: Some(pool.clone()),
+        max_envs: options.limits.max_envs_per_session,
+    });
     let sessions = Arc::new(Sessions::new(
         options.limits,
         options.base_config.clone(),
         pool,
     ));
     let max_message = options.limits.max_message_bytes();
-    let simulator = SimulatorServer::new(SimulatorService::new(sessions.clone()))
+    let simulator = SimulatorServer::new(SimulatorService::new(sessions.clone(), evaluation))
         .max_decoding_message_size(max_message)
         .max_encoding_message_size(max_message);
     let simulator = InterceptedService::new(

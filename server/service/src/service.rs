@@ -11,18 +11,23 @@ use tracing::{info, warn};
 use unigait_proto::v1::{self, simulator_server::Simulator};
 
 use crate::error::ServiceError;
+use crate::evaluate::{self, EvaluateContext};
 use crate::session::Sessions;
 
 /// The Simulator service.
 #[derive(Clone)]
 pub struct SimulatorService {
     sessions: Arc<Sessions>,
+    evaluation: Arc<EvaluateContext>,
 }
 
 impl SimulatorService {
-    /// A service over `sessions`.
-    pub fn new(sessions: Arc<Sessions>) -> Self {
-        Self { sessions }
+    /// A service over `sessions`, evaluating policies with `evaluation`.
+    pub fn new(sessions: Arc<Sessions>, evaluation: Arc<EvaluateContext>) -> Self {
+        Self {
+            sessions,
+            evaluation,
+        }
     }
 }
 
@@ -171,10 +176,11 @@ impl Simulator for SimulatorService {
 
     async fn evaluate(
         &self,
-        _: Request<v1::EvaluateRequest>,
+        request: Request<v1::EvaluateRequest>,
     ) -> Result<Response<v1::EvaluateResponse>, Status> {
-        Err(Status::unimplemented(
-            "Evaluate is not available in this server build yet",
-        ))
+        let request = request.into_inner();
+        let ctx = self.evaluation.clone();
+        let reply = blocking(move || evaluate::handle(request, &ctx)).await?;
+        Ok(Response::new(reply))
     }
 }

@@ -1,0 +1,607 @@
+//! Running a scenario: build the envs of each case, roll the policies out, measure.
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+use std::time::Instant;
+
+use unigait_sim::env::{VecEnv, VecEnvOptions};
+use unigait_sim::robot::RobotModel;
+use unigait_sim::task::TaskConfig;
+use unigait_sim::terrain::Terrain;
+
+use crate::error::EvalError;
+use crate::metrics::{
+    HOLD_S, QUAD_PITCH, Summary, TrackingAccumulator, TraversalEnd, UPRIGHT_PITCH, first_sustained,
+    median, rate, traversal_step,
+};
+use crate::report::{
+    EvalReport, HeightTrace, TransitionReport, TransitionTrial, TraversalCaseReport,
+    TraversalReport, TraversalTrial,
+};
+use crate::runner::{Policies, Rollout, StepObserver, probe};
+use crate::scenario::{
+    Mode, Scenario, ScenarioKind, TABLE_VI, TrackingSpec, TransitionSpec, TraversalSpec, scenario,
+    table_vi_scenarios, tracking_config, transition_config, traversal_config,
+};
+use crate::terrain::obstacle_terrain;
+
+/// Time shown before the switch in the height trace (s).
+const TRACE_BEFORE_S: f32 = 1.0;
+
+/// How an evaluation runs.
+#[derive(Clone)]
+pub struct EvalOptions {
+    /// Envs (trials); None = the scenario's default.
+    pub num_envs: Option<usize>,
+    /// Seed of the envs (and of generated terrains).
+    pub seed: u64,
+    /// The task config the scenario starts from (the server's, so policies see what they
+    /// were trained on).
+    pub base_config: TaskConfig,
+    /// The robot.
+    pub model: Arc<RobotModel>,
+    /// Step the envs on this pool (a server's shared one); None = a pool of `threads`.
+    pub pool: Option<Arc<rayon::ThreadPool>>,
+    /// Worker threads when there is no pool (0 = one per core).
+    pub threads: usize,
+    /// Most envs one case may run.
+    pub max_envs: usize,
+}
+
+impl std::fmt::Debug for EvalOptions {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("EvalOptions")
+            .field("num_envs", &self.num_envs)
+            .field("seed", &self.seed)
+            .field("threads", &self.threads)
+            .field("max_envs", &self.max_envs)
+            .finish_non_exhaustive()
+    }
+}
+
+impl Default for EvalOptions {
+    fn default() -> Self {
+        Self {
+            num_envs: None,
+            seed: 0,
+            base_config: TaskConfig::embedded_default(),
+            model: Arc::new(RobotModel::go2()),
+            pool: None,
+            threads: 0,
+            max_envs: 8192,
+        }
+    }
+}
+
+impl EvalOptions {
+    fn envs(&self, scenario: &Scenario) -> Result<usize, EvalError> {
+        let n = self.num_envs.unwrap_or(scenario.default_envs);
+        if n == 0 || n > self.max_envs {
+            return Err(EvalError::InvalidOption(format!(
+                "num_envs {n} out of range [1, {}]",
+                self.max_envs
+            )));
+        }
+        Ok(n)
+    }
+
+    fn make_env(
+        &self,
+        config: TaskConfig,
+        terrain: Terrain,
+        num_envs: usize,
+        seed: u64,
+    ) -> Result<VecEnv, EvalError> {
+        let options = VecEnvOptions {
+            num_envs,
+            seed,
+            threads: self.threads,
+            physics_only: false,
+            autoreset: true,
+        };
+        let terrain = Arc::new(terrain);
+        Ok(match &self.pool {
+            Some(pool) => {
+                VecEnv::with_pool(self.model.clone(), config, terrain, options, pool.clone())?
+            }
+            None => VecEnv::new(self.model.clone(), config, terrain, options)?,
+        })
+    }
+}
+
+/// Evaluate `policies` on the scenario called `name` (or the composite `table_vi`).
+pub fn evaluate(
+    name: &str,
+    policies: &Policies,
+    options: &EvalOptions,
+    observer: &mut dyn StepObserver,
+) -> Result<EvalReport, EvalError> {
+    policies.check()?;
+    if name == TABLE_VI {
+        return evaluate_table_vi(policies, options, observer);
+    }
+    evaluate_scenario(&scenario(name)?, policies, options, observer)
+}
+
+/// Evaluate `policies` on `scenario`.
+pub fn evaluate_scenario(
+    scenario: &Scenario,
+    policies: &Policies,
+    options: &EvalOptions,
+    observer: &mut dyn StepObserver,
+) -> Result<EvalReport, EvalError> {
+    policies.check()?;
+    let t0 = Instant::now();
+    let n = options.envs(scenario)?;
+    let mut report = EvalReport {
+        scenario: scenario.name.to_string(),
+        description: scenario.description.to_string(),
+        policy: policies.kind().to_string(),
+        num_envs: n,
+        seed: options.seed,
+        metrics: BTreeMap::new(),
+        traversal: None,
+        transition: None,
+        tracking: BTreeMap::new(),
+        parts: Vec::new(),
+        wall_s: 0.0,
+        notes: vec![
+            "calm start: default joints, no initial velocity or tilt; pushes off; the base \
+             config's other domain randomisation and observation noise stay on"
+                .into(),
+        ],
+    };
+    let mut tracking = [TrackingAccumulator::default(); 2];
+    match &scenario.kind {
+        ScenarioKind::Traversal(spec) => {
+            let t = run_traversal(spec, n, policies, options, observer, &mut tracking)?;
+            traversal_metrics(&t, &mut report.metrics);
+            report.notes.push(format!(
+                "success = the base got {} m past the obstacle's far edge along the commanded \
+                 direction within {} s with no base contact",
+                spec.margin_m, spec.time_limit_s
+            ));
+            report.traversal = Some(t);
+        }
+        ScenarioKind::Transition(spec) => {
+            let t = run_transition(spec, n, policies, options, observer, &mut tracking)?;
+            transition_metrics(&t, &mut report.metrics);
+            report.notes.push(format!(
+                "the env draws the mode (p = 0.5) at reset and at {} s; trials are the envs that \
+                 drew {} then {} and were in the {} posture at the switch; posture reached = \
+                 {} held {HOLD_S} s; success = reached within {} s and no base contact from the \
+                 switch until {} s after",
+                spec.switch_s,
+                spec.from.name(),
+                spec.to.name(),
+                spec.from.name(),
+                match spec.to {
+                    Mode::Biped => format!("pitch > {UPRIGHT_PITCH} rad"),
+                    Mode::Quad => format!("|pitch| < {QUAD_PITCH} rad"),
+                },
+                spec.max_transition_s,
+                spec.settle_s
+            ));
+            report.transition = Some(t);
+        }
+        ScenarioKind::Tracking(spec) => {
+            run_tracking(spec, n, policies, options, observer, &mut tracking)?;
+            report.notes.push(format!(
+                "commands drawn from the base config's {} ranges",
+                spec.mode.name()
+            ));
+        }
+    }
+    for (mode, acc) in [(Mode::Biped, &tracking[0]), (Mode::Quad, &tracking[1])] {
+        if let Some(stats) = acc.stats() {
+            let m = &mut report.metrics;
+            let prefix = format!("tracking/{}", mode.name());
+            m.insert(
+                format!("{prefix}/lin_vel_error_mps"),
+                stats.lin_vel_error_mps,
+            );
+            m.insert(
+                format!("{prefix}/ang_vel_error_radps"),
+                stats.ang_vel_error_radps,
+            );
+            m.insert(format!("{prefix}/samples"), stats.samples as f64);
+            report.tracking.insert(mode.name().to_string(), stats);
+        }
+    }
+    report.notes.push(format!(
+        "tracking error: heading-frame velocity, steps at least {} s after a reset or mode \
+         change; biped steps only when upright (pitch > {UPRIGHT_PITCH} rad)",
+        crate::metrics::TRACKING_SETTLE_S
+    ));
+    report.wall_s = t0.elapsed().as_secs_f64();
+    report.metrics.insert("wall_s".into(), report.wall_s);
+    Ok(report)
+}
+
+/// Every Table VI column, one after the other; metrics are prefixed with the scenario name.
+fn evaluate_table_vi(
+    policies: &Policies,
+    options: &EvalOptions,
+    observer: &mut dyn StepObserver,
+) -> Result<EvalReport, EvalError> {
+    let t0 = Instant::now();
+    let mut report = EvalReport {
+        scenario: TABLE_VI.into(),
+        description: "Table VI: terrain traversal success of every column".into(),
+        policy: policies.kind().to_string(),
+        num_envs: 0,
+        seed: options.seed,
+        metrics: BTreeMap::new(),
+        traversal: None,
+        transition: None,
+        tracking: BTreeMap::new(),
+        parts: Vec::new(),
+        wall_s: 0.0,
+        notes: Vec::new(),
+    };
+    for s in table_vi_scenarios() {
+        let part = evaluate_scenario(&s, policies, options, observer)?;
+        report.num_envs += part.num_envs;
+        for (k, v) in &part.metrics {
+            report.metrics.insert(format!("{}/{k}", s.name), *v);
+        }
+        report.parts.push(part);
+    }
+    report.wall_s = t0.elapsed().as_secs_f64();
+    report.metrics.insert("wall_s".into(), report.wall_s);
+    Ok(report)
+}
+
+fn merge_tracking(into: &mut [TrackingAccumulator; 2], rollout: &Rollout) {
+    into[0].merge(rollout.tracking(Mode::Biped));
+    into[1].merge(rollout.tracking(Mode::Quad));
+}
+
+fn steps_for(config: &TaskConfig, seconds: f32) -> u32 {
+    (seconds / config.policy_dt()).round().max(1.0) as u32
+}
+
+fn run_traversal(
+    spec: &TraversalSpec,
+    n: usize,
+    policies: &Policies,
+    options: &EvalOptions,
+    observer: &mut dyn StepObserver,
+    tracking: &mut [TrackingAccumulator; 2],
+) -> Result<TraversalReport, EvalError> {
+    let cases = spec.cases.len().max(1);
+    let mut report = TraversalReport {
+        table_vi_column: spec.table_vi_column,
+        mode: spec.mode,
+        speed_mps: spec.speed_mps,
+        trials: 0,
+        successes: 0,
+        success_rate: None,
+        terminations: 0,
+        cases: Vec::new(),
+        outcomes: Vec::new(),
+    };
+    for (k, case) in spec.cases.iter().enumerate() {
+        let envs = n / cases + usize::from(k < n % cases);
+        if envs == 0 {
+            continue;
+        }
+        let config = traversal_config(&options.base_config, spec, case)?;
+        let dt = config.policy_dt();
+        let steps = steps_for(&config, spec.time_limit_s);
+        let distance = case.obstacle.half_extent() + spec.margin_m;
+        let seed = options.seed.wrapping_add(k as u64);
+        let terrain = obstacle_terrain(&case.obstacle, seed)?;
+        let mut rollout = Rollout::new(options.make_env(config, terrain, envs, seed)?);
+        observer.begin_case(k, case.name, rollout.env());
+        let mut ended: Vec<Option<(TraversalEnd, u32)>> = vec![None; envs];
+        let mut best = vec![0.0f32; envs];
+        let direction = case.direction.signum();
+        while rollout.steps() < steps && ended.iter().any(Option::is_none) {
+            rollout.step(policies)?;
+            let step = rollout.steps();
+            observer.after_step(k, step, rollout.env());
+            let last = step >= steps;
+            for i in 0..envs {
+                if ended[i].is_some() {
+                    continue;
+                }
+                let p = probe(rollout.env(), i);
+                // After a termination the env is already reset: keep the progress of before.
+                let progress = if p.terminated || p.truncated {
+                    best[i]
+                } else {
+                    direction * (p.base[0] - p.origin[0])
+                };
+                best[i] = best[i].max(progress);
+                ended[i] = traversal_step(progress, distance, p.terminated, p.truncated || last)
+                    .map(|end| (end, step));
+            }
+        }
+        observer.end_case(k);
+        merge_tracking(tracking, &rollout);
+        let mut c = TraversalCaseReport {
+            name: case.name,
+            obstacle: case.obstacle,
+            direction,
+            distance_m: distance,
+            trials: envs,
+            successes: 0,
+            success_rate: None,
+            terminations: 0,
+            timeouts: 0,
+            mean_progress_m: Summary::of(best.iter().map(|&b| f64::from(b))).mean,
+        };
+        for (i, e) in ended.iter().enumerate() {
+            let (end, step) = e.unwrap_or((TraversalEnd::TimedOut, rollout.steps()));
+            match end {
+                TraversalEnd::Crossed => c.successes += 1,
+                TraversalEnd::Terminated => c.terminations += 1,
+                TraversalEnd::TimedOut => c.timeouts += 1,
+            }
+            report.outcomes.push(TraversalTrial {
+                env: i,
+                case: case.name,
+                end,
+                progress_m: best[i],
+                time_s: step as f32 * dt,
+            });
+        }
+        c.success_rate = rate(c.successes, c.trials);
+        report.trials += c.trials;
+        report.successes += c.successes;
+        report.terminations += c.terminations;
+        report.cases.push(c);
+    }
+    report.success_rate = rate(report.successes, report.trials);
+    Ok(report)
+}
+
+fn traversal_metrics(t: &TraversalReport, m: &mut BTreeMap<String, f64>) {
+    if let Some(r) = t.success_rate {
+        m.insert("success_rate".into(), r);
+    }
+    m.insert("trials".into(), t.trials as f64);
+    m.insert("successes".into(), t.successes as f64);
+    m.insert("terminations".into(), t.terminations as f64);
+    let progress = Summary::of(t.outcomes.iter().map(|o| f64::from(o.progress_m)));
+    m.insert("mean_progress_m".into(), progress.mean);
+    for c in &t.cases {
+        if let Some(r) = c.success_rate {
+            m.insert(format!("case/{}/success_rate", c.name), r);
+        }
+    }
+}
+
+/// Per-env traces of a transition run.
+struct TransitionTraces {
+    pitch: Vec<Vec<f32>>,
+    height: Vec<Vec<f32>>,
+    /// First step at which the episode ended (terminated or truncated), and whether by
+    /// termination.
+    end: Vec<Option<(usize, bool)>>,
+    command_before: Vec<[f32; 3]>,
+    command_after: Vec<[f32; 3]>,
+}
+
+fn run_transition(
+    spec: &TransitionSpec,
+    n: usize,
+    policies: &Policies,
+    options: &EvalOptions,
+    observer: &mut dyn StepObserver,
+    tracking: &mut [TrackingAccumulator; 2],
+) -> Result<TransitionReport, EvalError> {
+    let config = transition_config(&options.base_config, spec)?;
+    let dt = config.policy_dt();
+    let switch = config.mode_interval_steps() as usize;
+    let total = switch + steps_for(&config, spec.window_s) as usize;
+    let hold = steps_for(&config, HOLD_S) as usize;
+    let settle = steps_for(&config, spec.settle_s) as usize;
+    let max_transition = steps_for(&config, spec.max_transition_s) as usize;
+    let mut rollout = Rollout::new(options.make_env(config, Terrain::Flat, n, options.seed)?);
+    observer.begin_case(0, "transition", rollout.env());
+    let initial: Vec<Option<Mode>> = rollout
+        .env()
+        .output()
+        .mode
+        .iter()
+        .map(|&c| Mode::from_code(c))
+        .collect();
+    let mut after: Vec<Option<Mode>> = vec![None; n];
+    let mut tr = TransitionTraces {
+        pitch: vec![Vec::with_capacity(total + 1); n],
+        height: vec![Vec::with_capacity(total + 1); n],
+        end: vec![None; n],
+        command_before: vec![[0.0; 3]; n],
+        command_after: vec![[0.0; 3]; n],
+    };
+    for i in 0..n {
+        let p = probe(rollout.env(), i);
+        tr.pitch[i].push(p.pitch);
+        tr.height[i].push(p.height);
+        tr.command_before[i] = p.command;
+    }
+    while (rollout.steps() as usize) < total {
+        rollout.step(policies)?;
+        let step = rollout.steps() as usize;
+        observer.after_step(0, step as u32, rollout.env());
+        for i in 0..n {
+            let p = probe(rollout.env(), i);
+            if tr.end[i].is_none() && (p.terminated || p.truncated) {
+                tr.end[i] = Some((step, p.terminated));
+            }
+            // Traces stop at the end of the first episode (the env is reset after it).
+            let alive = tr.end[i].is_none();
+            tr.pitch[i].push(if alive { p.pitch } else { f32::NAN });
+            tr.height[i].push(if alive { p.height } else { f32::NAN });
+            if step == switch {
+                after[i] = p.mode;
+                tr.command_after[i] = p.command;
+            }
+        }
+    }
+    observer.end_case(0);
+    merge_tracking(tracking, &rollout);
+
+    let mut report = TransitionReport {
+        from: spec.from,
+        to: spec.to,
+        switch_s: switch as f32 * dt,
+        envs: n,
+        eligible: 0,
+        fell_before_switch: 0,
+        not_in_posture_at_switch: 0,
+        trials: 0,
+        successes: 0,
+        success_rate: None,
+        base_contacts: 0,
+        transition_time_s: Summary::default(),
+        transition_time_median_s: None,
+        height_std_m: Summary::default(),
+        height_range_m: Summary::default(),
+        height_trace: HeightTrace::default(),
+        outcomes: Vec::new(),
+    };
+    let in_from_posture = |pitch: f32| match spec.from {
+        Mode::Biped => pitch > UPRIGHT_PITCH,
+        Mode::Quad => pitch.abs() < QUAD_PITCH,
+    };
+    let in_to_posture = |pitch: f32| match spec.to {
+        Mode::Biped => pitch > UPRIGHT_PITCH,
+        Mode::Quad => pitch.abs() < QUAD_PITCH,
+    };
+    let mut trials: Vec<usize> = Vec::new();
+    for i in 0..n {
+        if initial[i] != Some(spec.from) {
+            continue;
+        }
+        if tr.end[i].is_some_and(|(s, _)| s <= switch) {
+            // Its episode ended before the switch (the reset redrew its mode): not a trial.
+            report.fell_before_switch += 1;
+            continue;
+        }
+        if after[i] != Some(spec.to) {
+            continue;
+        }
+        report.eligible += 1;
+        if !in_from_posture(tr.pitch[i][switch]) {
+            report.not_in_posture_at_switch += 1;
+            continue;
+        }
+        trials.push(i);
+    }
+    let mut times = Vec::new();
+    let mut stds = Vec::new();
+    let mut ranges = Vec::new();
+    for &i in &trials {
+        let done = first_sustained(&tr.pitch[i], switch, hold, in_to_posture);
+        let contact_at = tr.end[i].and_then(|(s, terminated)| terminated.then_some(s));
+        // The base must stay off the ground until `settle` after completion (or the whole
+        // window when the transition never completes).
+        let watch_until = done.map_or(total, |d| (d + settle).min(total));
+        let base_contact = contact_at.is_some_and(|s| s > switch && s <= watch_until);
+        let success = done.is_some_and(|d| d - switch <= max_transition && d + settle <= total)
+            && !base_contact;
+        let heights: Vec<f64> = tr.height[i][switch..]
+            .iter()
+            .filter(|h| h.is_finite())
+            .map(|&h| f64::from(h))
+            .collect();
+        let h = Summary::of(heights);
+        let time = done.map(|d| (d - switch) as f32 * dt);
+        if let Some(t) = time {
+            times.push(f64::from(t));
+        }
+        stds.push(h.std);
+        ranges.push(h.range());
+        report.base_contacts += usize::from(base_contact);
+        report.successes += usize::from(success);
+        report.outcomes.push(TransitionTrial {
+            env: i,
+            command_before: tr.command_before[i],
+            command_after: tr.command_after[i],
+            transition_time_s: time,
+            base_contact,
+            success,
+            height_std_m: h.std as f32,
+            height_range_m: h.range() as f32,
+        });
+    }
+    report.trials = trials.len();
+    report.success_rate = rate(report.successes, report.trials);
+    report.transition_time_s = Summary::of(times.iter().copied());
+    report.transition_time_median_s = median(&times);
+    report.height_std_m = Summary::of(stds);
+    report.height_range_m = Summary::of(ranges);
+    let before = steps_for(&rollout.env().context().config, TRACE_BEFORE_S) as usize;
+    let start = switch.saturating_sub(before);
+    for s in start..=total {
+        let hs = trials
+            .iter()
+            .map(|&i| tr.height[i][s])
+            .filter(|h| h.is_finite())
+            .map(f64::from);
+        let sum = Summary::of(hs);
+        let t = &mut report.height_trace;
+        t.t_s.push((s as f32 - switch as f32) * dt);
+        t.mean_m.push(sum.mean as f32);
+        t.std_m.push(sum.std as f32);
+        t.count.push(sum.count as u32);
+    }
+    Ok(report)
+}
+
+fn transition_metrics(t: &TransitionReport, m: &mut BTreeMap<String, f64>) {
+    if let Some(r) = t.success_rate {
+        m.insert("success_rate".into(), r);
+        m.insert(
+            "base_contact_rate".into(),
+            t.base_contacts as f64 / t.trials as f64,
+        );
+    }
+    m.insert("trials".into(), t.trials as f64);
+    m.insert("successes".into(), t.successes as f64);
+    m.insert("eligible_envs".into(), t.eligible as f64);
+    m.insert("fell_before_switch".into(), t.fell_before_switch as f64);
+    m.insert(
+        "not_in_posture_at_switch".into(),
+        t.not_in_posture_at_switch as f64,
+    );
+    if t.transition_time_s.count > 0 {
+        m.insert("transition_time_s_mean".into(), t.transition_time_s.mean);
+        m.insert(
+            "transitions_completed".into(),
+            t.transition_time_s.count as f64,
+        );
+    }
+    if let Some(med) = t.transition_time_median_s {
+        m.insert("transition_time_s_median".into(), med);
+    }
+    if t.height_std_m.count > 0 {
+        m.insert("com_height_std_m".into(), t.height_std_m.mean);
+        m.insert("com_height_range_m".into(), t.height_range_m.mean);
+        m.insert("com_height_range_max_m".into(), t.height_range_m.max);
+    }
+}
+
+fn run_tracking(
+    spec: &TrackingSpec,
+    n: usize,
+    policies: &Policies,
+    options: &EvalOptions,
+    observer: &mut dyn StepObserver,
+    tracking: &mut [TrackingAccumulator; 2],
+) -> Result<(), EvalError> {
+    let config = tracking_config(&options.base_config, spec)?;
+    let steps = steps_for(&config, spec.duration_s);
+    let mut rollout = Rollout::new(options.make_env(config, Terrain::Flat, n, options.seed)?);
+    observer.begin_case(0, spec.mode.name(), rollout.env());
+    while rollout.steps() < steps {
+        rollout.step(policies)?;
+        observer.after_step(0, rollout.steps(), rollout.env());
+    }
+    observer.end_case(0);
+    merge_tracking(tracking, &rollout);
+    Ok(())
+}

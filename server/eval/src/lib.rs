@@ -1,0 +1,43 @@
+//! unigait-eval: the paper's evaluation (Section IV) as server-side rollouts of ONNX policies
+//! on unigait-sim envs, with a typed report.
+//!
+//! - Scenarios ([`scenarios`]): Table VI terrain traversal (15 cm stairs up/down and 30 deg
+//!   slopes in quad mode; 30 deg slopes, 12 cm stairs up and 15 cm stairs down in biped mode;
+//!   20 trials each), biped -> quad transitions on flat ground with commands in [-0.5, 0.5]
+//!   m/s, quad -> biped switches at 1.5 m/s with the transition time, the CoM (base) height
+//!   through the switch, velocity tracking per mode, plus flat sanity walks and the composite
+//!   `table_vi`.
+//! - Controllers ([`Policies`]): one unified policy, or the two-policy baseline (a quad and a
+//!   biped policy switched at the mode change).
+//! - Runs ([`evaluate`]): each case builds a `VecEnv` from the base task config with the
+//!   scenario's settings ([`scenario::calm_config`] and friends), keeps every env's 3-step
+//!   observation history ([`unigait_policy::ObsHistory`]; an env that resets restarts its
+//!   history with its new first observation), and measures; a [`StepObserver`] sees every step
+//!   (the service records env 0 with it).
+//!
+//! Sim hook that would help: the env layer draws task modes at random, so a mid-episode switch
+//! is obtained by drawing at the switch time with p = 0.5 and keeping the envs whose draws fit
+//! (about a quarter of them). A method
+//! `VecEnv::set_mode(&mut self, i: usize, mode: TaskMode, command: Option<[f32; 3]>)` (set the
+//! env's mode, optionally its command, and rewrite row `i` of the observations, as a mode draw
+//! does) would let every env switch on cue.
+#![warn(missing_docs)]
+
+mod error;
+mod evaluate;
+pub mod metrics;
+mod report;
+mod runner;
+pub mod scenario;
+pub mod terrain;
+
+pub use error::EvalError;
+pub use evaluate::{EvalOptions, evaluate, evaluate_scenario};
+pub use metrics::{Summary, TrackingStats, TraversalEnd};
+pub use report::{
+    EvalReport, HeightTrace, TransitionReport, TransitionTrial, TraversalCaseReport,
+    TraversalReport, TraversalTrial,
+};
+pub use runner::{EnvProbe, NoObserver, Policies, Rollout, StepObserver, probe, sim_policy_spec};
+pub use scenario::{Mode, Scenario, ScenarioKind, TABLE_VI, scenario, scenario_names, scenarios};
+pub use terrain::{Obstacle, obstacle_terrain};

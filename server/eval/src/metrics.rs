@@ -1,0 +1,247 @@
+//! The measures, as small pure functions over per-step traces (unit-tested on hand-made traces).
+
+use serde::Serialize;
+
+/// Pitch above which the robot stands on its front legs: the paper's upright indicator (rad).
+pub const UPRIGHT_PITCH: f32 = 1.4;
+/// |pitch| below which the robot is back on four legs (rad).
+pub const QUAD_PITCH: f32 = 0.35;
+/// A posture counts as reached once it has held this long (s).
+pub const HOLD_S: f32 = 0.3;
+/// Steps after a reset or a mode change left out of the tracking error (s).
+pub const TRACKING_SETTLE_S: f32 = 1.0;
+
+/// How one traversal trial ended.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TraversalEnd {
+    /// Got the whole distance.
+    Crossed,
+    /// The base touched the terrain (or the physics blew up) first.
+    Terminated,
+    /// Ran out of time.
+    TimedOut,
+}
+
+/// Decide one step of a traversal trial: `progress` (m along the commanded direction),
+/// whether the env terminated or was truncated in this step. Returns the end, if it ended.
+///
+/// A termination ends the trial as a failure whatever the progress: a robot that falls past
+/// the line did not cross the obstacle.
+pub fn traversal_step(
+    progress: f32,
+    distance: f32,
+    terminated: bool,
+    truncated: bool,
+) -> Option<TraversalEnd> {
+    if terminated {
+        Some(TraversalEnd::Terminated)
+    } else if progress >= distance {
+        Some(TraversalEnd::Crossed)
+    } else if truncated {
+        Some(TraversalEnd::TimedOut)
+    } else {
+        None
+    }
+}
+
+/// First index `i >= start` from which `holds(trace[j])` is true for every j in
+/// `i .. i + hold` (and the trace is long enough to tell).
+pub fn first_sustained(
+    trace: &[f32],
+    start: usize,
+    hold: usize,
+    holds: impl Fn(f32) -> bool,
+) -> Option<usize> {
+    let hold = hold.max(1);
+    let mut run = 0usize;
+    for (i, &v) in trace.iter().enumerate().skip(start) {
+        if holds(v) {
+            run += 1;
+            if run >= hold {
+                return Some(i + 1 - hold);
+            }
+        } else {
+            run = 0;
+        }
+    }
+    None
+}
+
+/// Mean, standard deviation, min and max of `values` (all 0 when empty).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct Summary {
+    /// Samples.
+    pub count: usize,
+    /// Mean.
+    pub mean: f64,
+    /// Population standard deviation.
+    pub std: f64,
+    /// Smallest value.
+    pub min: f64,
+    /// Largest value.
+    pub max: f64,
+}
+
+impl Summary {
+    /// Summarise `values`.
+    pub fn of(values: impl IntoIterator<Item = f64>) -> Self {
+        let (mut n, mut sum, mut sq) = (0usize, 0.0, 0.0);
+        let (mut min, mut max) = (f64::INFINITY, f64::NEG_INFINITY);
+        for v in values {
+            n += 1;
+            sum += v;
+            sq += v * v;
+            min = min.min(v);
+            max = max.max(v);
+        }
+        if n == 0 {
+            return Self::default();
+        }
+        let mean = sum / n as f64;
+        Self {
+            count: n,
+            mean,
+            std: (sq / n as f64 - mean * mean).max(0.0).sqrt(),
+            min,
+            max,
+        }
+    }
+
+    /// Max minus min.
+    pub fn range(&self) -> f64 {
+        if self.count == 0 {
+            0.0
+        } else {
+            self.max - self.min
+        }
+    }
+}
+
+/// Running sums of the velocity tracking error in one mode.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct TrackingAccumulator {
+    samples: u64,
+    lin: f64,
+    lin_sq: f64,
+    ang: f64,
+}
+
+/// Velocity tracking error of one mode.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct TrackingStats {
+    /// Env steps counted.
+    pub samples: u64,
+    /// Mean |v*_xy - v_xy| in the heading frame (m/s).
+    pub lin_vel_error_mps: f64,
+    /// Root mean square of the same (m/s).
+    pub lin_vel_rmse_mps: f64,
+    /// Mean |w*_z - w_z| (rad/s).
+    pub ang_vel_error_radps: f64,
+}
+
+impl TrackingAccumulator {
+    /// Add one env step: command (vx, vy, wz), measured heading-frame (vx, vy) and yaw rate.
+    pub fn add(&mut self, command: [f32; 3], velocity_xy: [f32; 2], yaw_rate: f32) {
+        let (dx, dy) = (command[0] - velocity_xy[0], command[1] - velocity_xy[1]);
+        let e = f64::from((dx * dx + dy * dy).sqrt());
+        self.samples += 1;
+        self.lin += e;
+        self.lin_sq += e * e;
+        self.ang += f64::from((command[2] - yaw_rate).abs());
+    }
+
+    /// Add another accumulator's samples.
+    pub fn merge(&mut self, other: &TrackingAccumulator) {
+        self.samples += other.samples;
+        self.lin += other.lin;
+        self.lin_sq += other.lin_sq;
+        self.ang += other.ang;
+    }
+
+    /// The means (None without samples).
+    pub fn stats(&self) -> Option<TrackingStats> {
+        (self.samples > 0).then(|| {
+            let n = self.samples as f64;
+            TrackingStats {
+                samples: self.samples,
+                lin_vel_error_mps: self.lin / n,
+                lin_vel_rmse_mps: (self.lin_sq / n).sqrt(),
+                ang_vel_error_radps: self.ang / n,
+            }
+        })
+    }
+}
+
+/// The median of `values` (None when empty).
+pub fn median(values: &[f64]) -> Option<f64> {
+    let mut v: Vec<f64> = values.iter().copied().filter(|x| x.is_finite()).collect();
+    if v.is_empty() {
+        return None;
+    }
+    v.sort_by(f64::total_cmp);
+    let m = v.len() / 2;
+    Some(if v.len() % 2 == 1 {
+        v[m]
+    } else {
+        0.5 * (v[m - 1] + v[m])
+    })
+}
+
+/// A rate that is None when there were no trials.
+pub fn rate(hits: usize, trials: usize) -> Option<f64> {
+    (trials > 0).then(|| hits as f64 / trials as f64)
+}
+
+#[cfg(test)]
+mod test {
+    use super::*;
+
+    #[test]
+    fn a_fall_is_a_failure_even_past_the_line() {
+        assert_eq!(
+            traversal_step(5.0, 4.5, true, false),
+            Some(TraversalEnd::Terminated)
+        );
+        assert_eq!(
+            traversal_step(4.6, 4.5, false, false),
+            Some(TraversalEnd::Crossed)
+        );
+        assert_eq!(
+            traversal_step(1.0, 4.5, false, true),
+            Some(TraversalEnd::TimedOut)
+        );
+        assert_eq!(traversal_step(1.0, 4.5, false, false), None);
+    }
+
+    #[test]
+    fn sustained_posture_needs_the_whole_hold() {
+        let pitch = [0.0, 1.5, 1.3, 1.5, 1.5, 1.5, 1.2];
+        let up = |p: f32| p > UPRIGHT_PITCH;
+        assert_eq!(first_sustained(&pitch, 0, 3, up), Some(3));
+        assert_eq!(first_sustained(&pitch, 0, 1, up), Some(1));
+        assert_eq!(first_sustained(&pitch, 0, 4, up), None);
+        assert_eq!(first_sustained(&pitch, 4, 2, up), Some(4));
+    }
+
+    #[test]
+    fn summary_and_tracking_by_hand() {
+        let s = Summary::of([1.0, 3.0]);
+        assert_eq!((s.count, s.mean, s.std, s.range()), (2, 2.0, 1.0, 2.0));
+        assert_eq!(Summary::of([]).count, 0);
+        let mut t = TrackingAccumulator::default();
+        t.add([1.0, 0.0, 0.5], [0.0, 0.0], 0.0);
+        t.add([0.0, 0.0, 0.0], [0.0, 0.0], 0.5);
+        let s = t.stats().unwrap();
+        assert_eq!(s.samples, 2);
+        assert!((s.lin_vel_error_mps - 0.5).abs() < 1e-12);
+        assert!((s.lin_vel_rmse_mps - 0.5f64.sqrt()).abs() < 1e-12);
+        assert!((s.ang_vel_error_radps - 0.5).abs() < 1e-12);
+        assert_eq!(TrackingAccumulator::default().stats(), None);
+        assert_eq!(rate(0, 0), None);
+        assert_eq!(median(&[3.0, 1.0, 2.0]), Some(2.0));
+        assert_eq!(median(&[1.0, 2.0]), Some(1.5));
+        assert_eq!(median(&[]), None);
+        assert_eq!(rate(1, 4), Some(0.25));
+    }
+}

@@ -1,0 +1,445 @@
+//! The named scenarios of the paper's evaluation (Section IV) and the task configs they run.
+//!
+//! The env layer draws task modes and commands at random from the [`TaskConfig`]; a scenario
+//! controls them through the config alone:
+//! - a pinned mode: `modes.biped_probability` 0 or 1 and a mode resampling time longer than
+//!   the run;
+//! - pinned commands: each mode's command ranges collapsed to one value (or the paper's range),
+//!   with a command resampling time longer than the run;
+//! - a mid-episode switch `from -> to` at time T: `modes.resampling_time_s = T` and
+//!   `biped_probability = 0.5`; the env draws the mode at reset and again at T, and the
+//!   evaluation keeps as trials the envs whose draws were `from` then `to` (a quarter of them on
+//!   average; the rest are reported as not eligible). A sim hook that sets an env's mode would
+//!   make every env a trial (see the crate doc).
+//!
+//! Every scenario starts calm (joints at the default pose, no initial velocity, level base: the
+//! training distribution of Table IV is for learning, not for measuring) and turns pushes off;
+//! the rest of the domain randomisation and the observation noise stay as the base config has
+//! them.
+
+use serde::Serialize;
+use unigait_sim::task::{TaskConfig, TaskMode};
+
+use crate::error::EvalError;
+use crate::terrain::Obstacle;
+
+/// A task mode, as reports name it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Mode {
+    /// Bipedal locomotion on the front legs (x = 1).
+    Biped,
+    /// Quadrupedal locomotion (x = 2).
+    Quad,
+}
+
+impl Mode {
+    /// The sim's mode.
+    pub fn task_mode(self) -> TaskMode {
+        match self {
+            Mode::Biped => TaskMode::Biped,
+            Mode::Quad => TaskMode::Quad,
+        }
+    }
+
+    /// The mode of a `StepOutput::mode` entry (1 biped, 2 quad).
+    pub fn from_code(code: u8) -> Option<Mode> {
+        match code {
+            1 => Some(Mode::Biped),
+            2 => Some(Mode::Quad),
+            _ => None,
+        }
+    }
+
+    /// `biped` or `quad`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Mode::Biped => "biped",
+            Mode::Quad => "quad",
+        }
+    }
+}
+
+/// One terrain and direction of a traversal scenario.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct TraversalCase {
+    /// Short name (`forward`, `backward`, `up`, `down`).
+    pub name: &'static str,
+    /// What the robot crosses.
+    pub obstacle: Obstacle,
+    /// +1 walks forward (command vx > 0), -1 backward.
+    pub direction: f32,
+}
+
+/// Cross an obstacle: success = the base got `distance` along the commanded direction from its
+/// spawn point (past the obstacle's far edge) with no termination on the way.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct TraversalSpec {
+    /// Mode for the whole run.
+    pub mode: Mode,
+    /// Commanded speed along the direction (m/s).
+    pub speed_mps: f32,
+    /// Terrains and directions; the trials are split evenly between them.
+    pub cases: Vec<TraversalCase>,
+    /// Success distance beyond the obstacle's far edge (m).
+    pub margin_m: f32,
+    /// Time allowed (s).
+    pub time_limit_s: f32,
+    /// The Table VI column this reproduces.
+    pub table_vi_column: Option<&'static str>,
+}
+
+/// A mode switch on flat ground.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct TransitionSpec {
+    /// Mode before the switch.
+    pub from: Mode,
+    /// Mode after it.
+    pub to: Mode,
+    /// Command vx range before the switch (m/s; vy and yaw rate are 0).
+    pub vx_from: [f32; 2],
+    /// Command vx range after the switch (m/s).
+    pub vx_to: [f32; 2],
+    /// Time of the switch (s).
+    pub switch_s: f32,
+    /// Observed time after the switch (s); below `switch_s`, so the env draws no third mode.
+    pub window_s: f32,
+    /// The base must not touch the ground until this long after the transition completes (s).
+    pub settle_s: f32,
+    /// The transition must complete within this time (s).
+    pub max_transition_s: f32,
+}
+
+/// Velocity tracking in one mode with commands drawn from the base config's ranges.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct TrackingSpec {
+    /// The mode.
+    pub mode: Mode,
+    /// Run time (s).
+    pub duration_s: f32,
+}
+
+/// What a scenario measures.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+#[serde(rename_all = "snake_case", tag = "kind")]
+pub enum ScenarioKind {
+    /// Terrain traversal success (Table VI).
+    Traversal(TraversalSpec),
+    /// Mode switch success, time and CoM height (Section IV-C, Fig. 5).
+    Transition(TransitionSpec),
+    /// Velocity tracking error.
+    Tracking(TrackingSpec),
+}
+
+/// A named scenario.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Scenario {
+    /// Registry name.
+    pub name: &'static str,
+    /// One line on what it reproduces.
+    pub description: &'static str,
+    /// Envs (trials) when the request names none.
+    pub default_envs: usize,
+    /// What it measures.
+    pub kind: ScenarioKind,
+}
+
+/// The composite scenario running every Table VI column.
+pub const TABLE_VI: &str = "table_vi";
+
+/// Quad traversal speed (m/s).
+const QUAD_SPEED: f32 = 0.8;
+/// Biped traversal speed (m/s), inside the biped command range of training.
+const BIPED_SPEED: f32 = 0.4;
+/// Trials per Table VI column in the paper.
+const TABLE_VI_TRIALS: usize = 20;
+
+fn both_ways(obstacle: Obstacle) -> Vec<TraversalCase> {
+    vec![
+        TraversalCase {
+            name: "forward",
+            obstacle,
+            direction: 1.0,
+        },
+        TraversalCase {
+            name: "backward",
+            obstacle,
+            direction: -1.0,
+        },
+    ]
+}
+
+fn up_and_down(degrees: f32) -> Vec<TraversalCase> {
+    vec![
+        TraversalCase {
+            name: "up",
+            obstacle: Obstacle::SlopeUp { degrees },
+            direction: 1.0,
+        },
+        TraversalCase {
+            name: "down",
+            obstacle: Obstacle::SlopeDown { degrees },
+            direction: 1.0,
+        },
+    ]
+}
+
+fn traversal(
+    name: &'static str,
+    description: &'static str,
+    mode: Mode,
+    cases: Vec<TraversalCase>,
+    column: Option<&'static str>,
+) -> Scenario {
+    Scenario {
+        name,
+        description,
+        default_envs: TABLE_VI_TRIALS,
+        kind: ScenarioKind::Traversal(TraversalSpec {
+            mode,
+            speed_mps: match mode {
+                Mode::Quad => QUAD_SPEED,
+                Mode::Biped => BIPED_SPEED,
+            },
+            cases,
+            margin_m: 0.5,
+            time_limit_s: 16.0,
+            table_vi_column: column,
+        }),
+    }
+}
+
+/// Every registered scenario, Table VI columns first.
+pub fn scenarios() -> Vec<Scenario> {
+    vec![
+        traversal(
+            "stairs_up_quad",
+            "Table VI: 15 cm stairs up, quadrupedal (10 forward + 10 backward)",
+            Mode::Quad,
+            both_ways(Obstacle::StairsUp { step_height: 0.15 }),
+            Some("15cm Stairs up (q)"),
+        ),
+        traversal(
+            "stairs_down_quad",
+            "Table VI: 15 cm stairs down, quadrupedal (10 forward + 10 backward)",
+            Mode::Quad,
+            both_ways(Obstacle::StairsDown { step_height: 0.15 }),
+            Some("15cm Stairs down (q)"),
+        ),
+        traversal(
+            "slope_quad",
+            "Table VI: 30 deg slope, quadrupedal (10 ascending + 10 descending)",
+            Mode::Quad,
+            up_and_down(30.0),
+            Some("30° Slope (q)"),
+        ),
+        traversal(
+            "slope_biped",
+            "Table VI: 30 deg slope, bipedal (10 ascending + 10 descending)",
+            Mode::Biped,
+            up_and_down(30.0),
+            Some("30° Slope (b)"),
+        ),
+        traversal(
+            "stairs_up_biped",
+            "Table VI: 12 cm stairs up, bipedal (10 forward + 10 backward, as the paper)",
+            Mode::Biped,
+            both_ways(Obstacle::StairsUp { step_height: 0.12 }),
+            Some("12cm Stairs up (b)"),
+        ),
+        traversal(
+            "stairs_down_biped",
+            "Table VI: 15 cm stairs down, bipedal (10 forward + 10 backward)",
+            Mode::Biped,
+            both_ways(Obstacle::StairsDown { step_height: 0.15 }),
+            Some("15 cm Stairs down (b)"),
+        ),
+        traversal(
+            "flat_quad",
+            "Sanity: walk 4.5 m forward on flat ground, quadrupedal",
+            Mode::Quad,
+            vec![TraversalCase {
+                name: "forward",
+                obstacle: Obstacle::Flat,
+                direction: 1.0,
+            }],
+            None,
+        ),
+        traversal(
+            "flat_biped",
+            "Sanity: walk 4.5 m forward on flat ground, bipedal",
+            Mode::Biped,
+            vec![TraversalCase {
+                name: "forward",
+                obstacle: Obstacle::Flat,
+                direction: 1.0,
+            }],
+            None,
+        ),
+        Scenario {
+            name: "transition_biped_to_quad",
+            description: "Section IV-C: biped -> quad on flat ground, commands vx in [-0.5, 0.5] \
+                          m/s; success = no base contact during the switch and 2 s after; CoM \
+                          height through the switch (Fig. 5)",
+            default_envs: 256,
+            kind: ScenarioKind::Transition(TransitionSpec {
+                from: Mode::Biped,
+                to: Mode::Quad,
+                vx_from: [-0.5, 0.5],
+                vx_to: [-0.5, 0.5],
+                switch_s: 4.0,
+                window_s: 3.9,
+                settle_s: 2.0,
+                max_transition_s: 1.9,
+            }),
+        },
+        Scenario {
+            name: "transition_quad_to_biped",
+            description: "Section IV-C: quad -> biped while running at 1.5 m/s (biped command \
+                          0.5 m/s after the switch); transition time until pitch > 1.4 rad holds",
+            default_envs: 256,
+            kind: ScenarioKind::Transition(TransitionSpec {
+                from: Mode::Quad,
+                to: Mode::Biped,
+                vx_from: [1.5, 1.5],
+                vx_to: [0.5, 0.5],
+                switch_s: 4.0,
+                window_s: 3.9,
+                settle_s: 2.0,
+                max_transition_s: 1.9,
+            }),
+        },
+        Scenario {
+            name: "tracking_quad",
+            description: "Velocity tracking error, quadrupedal, commands from the training ranges",
+            default_envs: 64,
+            kind: ScenarioKind::Tracking(TrackingSpec {
+                mode: Mode::Quad,
+                duration_s: 10.0,
+            }),
+        },
+        Scenario {
+            name: "tracking_biped",
+            description: "Velocity tracking error, bipedal (upright steps), commands from the \
+                          training ranges",
+            default_envs: 64,
+            kind: ScenarioKind::Tracking(TrackingSpec {
+                mode: Mode::Biped,
+                duration_s: 10.0,
+            }),
+        },
+    ]
+}
+
+/// Every scenario name, plus the composite `table_vi`.
+pub fn scenario_names() -> Vec<&'static str> {
+    let mut names: Vec<&'static str> = scenarios().iter().map(|s| s.name).collect();
+    names.push(TABLE_VI);
+    names
+}
+
+/// The scenario called `name`.
+pub fn scenario(name: &str) -> Result<Scenario, EvalError> {
+    scenarios()
+        .into_iter()
+        .find(|s| s.name == name)
+        .ok_or_else(|| EvalError::UnknownScenario {
+            name: name.to_string(),
+            known: scenario_names().join(", "),
+        })
+}
+
+/// The names of the Table VI scenarios, in the table's column order.
+pub fn table_vi_scenarios() -> Vec<Scenario> {
+    scenarios()
+        .into_iter()
+        .filter(|s| matches!(&s.kind, ScenarioKind::Traversal(t) if t.table_vi_column.is_some()))
+        .collect()
+}
+
+/// A long time (s): the longest resampling time the config accepts, so nothing is redrawn.
+const NEVER_S: f32 = 3600.0;
+
+/// The base config made calm and deterministic for an evaluation of `run_s` seconds: default
+/// joints, no initial velocity or tilt, no pushes, no spread of episode start times, no command
+/// or mode redraws (callers set those they want).
+pub fn calm_config(base: &TaskConfig, run_s: f32) -> TaskConfig {
+    let mut c = base.clone();
+    c.env.random_initial_episode_step = false;
+    c.env.episode_length_s = c.env.episode_length_s.max(run_s + 1.0);
+    c.init.hip = [0.0, 0.0];
+    c.init.thigh = [0.0, 0.0];
+    c.init.calf = [0.0, 0.0];
+    c.init.linvel = [0.0, 0.0];
+    c.init.angvel = [0.0, 0.0];
+    c.init.pitch = [0.0, 0.0];
+    c.init.yaw = [0.0, 0.0];
+    c.randomization.push_interval_s = 0.0;
+    c.modes.resampling_time_s = NEVER_S;
+    c.commands.resampling_time_s = NEVER_S;
+    c
+}
+
+/// Pin the mode for the whole run.
+pub fn pin_mode(c: &mut TaskConfig, mode: Mode) {
+    c.modes.biped_probability = match mode {
+        Mode::Biped => 1.0,
+        Mode::Quad => 0.0,
+    };
+    c.modes.resampling_time_s = NEVER_S;
+}
+
+/// Set `mode`'s commands to vx in `vx`, vy = 0, yaw rate 0.
+pub fn pin_command(c: &mut TaskConfig, mode: Mode, vx: [f32; 2]) {
+    let ranges = match mode {
+        Mode::Biped => &mut c.commands.biped,
+        Mode::Quad => &mut c.commands.quad,
+    };
+    ranges.vx = vx;
+    ranges.vy = [0.0, 0.0];
+    ranges.wz = [0.0, 0.0];
+}
+
+/// The config of one traversal case.
+pub fn traversal_config(
+    base: &TaskConfig,
+    spec: &TraversalSpec,
+    case: &TraversalCase,
+) -> Result<TaskConfig, EvalError> {
+    let mut c = calm_config(base, spec.time_limit_s);
+    pin_mode(&mut c, spec.mode);
+    let v = spec.speed_mps * case.direction;
+    pin_command(&mut c, Mode::Quad, [v, v]);
+    pin_command(&mut c, Mode::Biped, [v, v]);
+    c.validate()?;
+    Ok(c)
+}
+
+/// The config of a transition scenario: the mode is drawn (p = 0.5) at reset and at the switch.
+pub fn transition_config(
+    base: &TaskConfig,
+    spec: &TransitionSpec,
+) -> Result<TaskConfig, EvalError> {
+    if !(spec.window_s < spec.switch_s) {
+        return Err(EvalError::InvalidOption(format!(
+            "transition window {} s must be shorter than the switch time {} s",
+            spec.window_s, spec.switch_s
+        )));
+    }
+    let mut c = calm_config(base, spec.switch_s + spec.window_s);
+    c.modes.biped_probability = 0.5;
+    c.modes.resampling_time_s = spec.switch_s;
+    pin_command(&mut c, spec.from, spec.vx_from);
+    pin_command(&mut c, spec.to, spec.vx_to);
+    c.validate()?;
+    Ok(c)
+}
+
+/// The config of a tracking scenario: the mode pinned, commands as the base config draws them.
+pub fn tracking_config(base: &TaskConfig, spec: &TrackingSpec) -> Result<TaskConfig, EvalError> {
+    let mut c = calm_config(base, spec.duration_s);
+    c.commands.resampling_time_s = base.commands.resampling_time_s;
+    pin_mode(&mut c, spec.mode);
+    c.validate()?;
+    Ok(c)
+}

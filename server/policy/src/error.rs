@@ -1,0 +1,93 @@
+//! What can go wrong loading or running a policy.
+
+use thiserror::Error;
+
+/// A policy that cannot be loaded or run.
+#[derive(Debug, Error)]
+pub enum PolicyError {
+    /// The policy file could not be read.
+    #[error("cannot read policy file `{path}`: {source}")]
+    Io {
+        /// The path given.
+        path: String,
+        /// The OS error.
+        source: std::io::Error,
+    },
+    /// The bytes are not an ONNX model (protobuf decoding failed).
+    #[error("not an ONNX model ({len} bytes): {message}")]
+    Parse {
+        /// Number of bytes given.
+        len: usize,
+        /// The decoder's complaint.
+        message: String,
+    },
+    /// The graph does not have exactly one (non-initializer) input and one output.
+    #[error(
+        "the policy graph must have exactly one input and one output, it has {inputs} and {outputs}"
+    )]
+    Arity {
+        /// Graph inputs (initializers excluded).
+        inputs: usize,
+        /// Graph outputs.
+        outputs: usize,
+    },
+    /// The input is not f32.
+    #[error("input `{name}` must be f32 (ONNX FLOAT), it is ONNX element type {elem_type}")]
+    InputType {
+        /// Input name.
+        name: String,
+        /// ONNX `TensorProto.DataType` code.
+        elem_type: i32,
+    },
+    /// The input shape does not fit the observation history.
+    #[error("input `{name}` has shape {got}, expected {expected}")]
+    InputShape {
+        /// Input name.
+        name: String,
+        /// The declared shape (`?` for an unknown dim, names for symbolic dims).
+        got: String,
+        /// What fits.
+        expected: String,
+    },
+    /// The output shape does not fit the actions.
+    #[error("output `{name}` has shape {got}, expected {expected}")]
+    OutputShape {
+        /// Output name.
+        name: String,
+        /// The shape tract inferred.
+        got: String,
+        /// What fits.
+        expected: String,
+    },
+    /// tract could not analyse, type or optimise the graph.
+    #[error("cannot build the policy model ({stage}): {message}")]
+    Build {
+        /// Which stage failed.
+        stage: &'static str,
+        /// tract's error chain.
+        message: String,
+    },
+    /// The observation batch handed to the policy has the wrong length.
+    #[error("observation history has {got} values, expected {expected} ({detail})")]
+    Batch {
+        /// Values given.
+        got: usize,
+        /// Values expected.
+        expected: usize,
+        /// The shape behind `expected`.
+        detail: String,
+    },
+    /// Inference failed.
+    #[error("policy inference failed: {0}")]
+    Run(String),
+    /// The policy produced a NaN or infinite action.
+    #[error("policy produced a non-finite action {value} (env {env}, joint {joint})")]
+    NonFinite {
+        /// Env (row) index.
+        env: usize,
+        /// Action index.
+        joint: usize,
+        /// The value.
+        value: f32,
+    },
+}

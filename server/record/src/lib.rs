@@ -1,0 +1,28 @@
+//! unigait-record: rerun recordings of rollouts.
+//!
+//! A [`Recorder`] follows one env of a [`VecEnv`]: the robot drawn from the model's collision
+//! primitives (boxes, capsules for the cylinders as the physics has them, spheres for the
+//! feet) posed every step from [`VecEnv::body_poses`]; the terrain (a plane, or a mesh sampled
+//! from the grid's heights around the env); the command and the measured velocity as arrows;
+//! the feet coloured by contact; and time series of every reward term (`reward/<term>`), the
+//! total reward, the command, the task mode, the base height and pitch, the foot contacts.
+//! Two timelines: `step` (policy steps) and `sim_time` (seconds).
+//!
+//! Output: in memory (the `.rrd` bytes, e.g. for a gRPC reply), an `.rrd` file, or a live
+//! stream to a viewer's gRPC proxy (`rerun+http://127.0.0.1:9876/proxy`). Only rerun's `sdk`
+//! feature is used; serving a viewer from here would need its heavier `server` feature.
+//! rerun uses glam 0.30 and rapier glam 0.33: everything crosses as plain arrays.
+//!
+//! Entity layout: `world/robot/<body>` (pose per step) with `world/robot/<body>/geom<k>`
+//! (static shape and its pose in the body frame), `world/terrain`, `world/feet`,
+//! `world/command`, `world/velocity`; scalars under `reward/`, `command/`, `state/`,
+//! `contact/`, `mode`; text events under `events`.
+#![warn(missing_docs)]
+
+mod error;
+mod recorder;
+mod terrain_mesh;
+
+pub use error::RecordError;
+pub use recorder::{APPLICATION_ID, RecordOptions, Recorder, entity};
+pub use terrain_mesh::{TerrainMesh, terrain_mesh};
