@@ -161,7 +161,7 @@ impl Default for TerrainSpec {
             types: TerrainType::ALL.to_vec(),
             // 8 m (legged_gym terrain_length / terrain_width).
             tile_size: 8.0,
-            // 25 m (legged_gym border_size); free for the trimesh (four large triangles pairs).
+            // 25 m (legged_gym border_size); costs the mesh only four rectangles.
             border: 25.0,
             // 0.1 m (legged_gym horizontal_scale).
             horizontal_scale: 0.1,
