@@ -426,7 +426,7 @@ fn run_transition(
         rollout.step(policies)?;
         let step = rollout.steps() as usize;
         observer.after_step(0, step as u32, rollout.env());
-        for i in 0..n {
+        for (i, after) in after.iter_mut().enumerate() {
             let p = probe(rollout.env(), i);
             if tr.end[i].is_none() && (p.terminated || p.truncated) {
                 tr.end[i] = Some((step, p.terminated));
@@ -436,7 +436,7 @@ fn run_transition(
             tr.pitch[i].push(if alive { p.pitch } else { f32::NAN });
             tr.height[i].push(if alive { p.height } else { f32::NAN });
             if step == switch {
-                after[i] = p.mode;
+                *after = p.mode;
                 tr.command_after[i] = p.command;
             }
         }

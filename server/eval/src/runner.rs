@@ -206,6 +206,11 @@ impl Rollout {
         &self.env
     }
 
+    /// The observation histories the policy reads.
+    pub fn history(&self) -> &ObsHistory {
+        &self.history
+    }
+
     /// Policy steps taken.
     pub fn steps(&self) -> u32 {
         self.step
@@ -231,17 +236,17 @@ impl Rollout {
             .collect();
         self.history.push(&out.obs, &ended);
         self.step += 1;
-        for i in 0..n {
+        for (i, &end) in ended.iter().enumerate() {
             let p = probe(&self.env, i);
             let code = self.env.output().mode[i];
-            if code != self.last_mode[i] || ended[i] != 0 {
+            if code != self.last_mode[i] || end != 0 {
                 self.since_mode_change[i] = 0;
                 self.last_mode[i] = code;
             } else {
                 self.since_mode_change[i] += 1;
             }
             let settled = self.since_mode_change[i].min(p.episode_step) >= self.settle_steps;
-            if !settled || ended[i] != 0 {
+            if !settled || end != 0 {
                 continue;
             }
             match p.mode {

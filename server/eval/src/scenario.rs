@@ -420,7 +420,7 @@ pub fn transition_config(
     base: &TaskConfig,
     spec: &TransitionSpec,
 ) -> Result<TaskConfig, EvalError> {
-    if !(spec.window_s < spec.switch_s) {
+    if spec.window_s.partial_cmp(&spec.switch_s) != Some(std::cmp::Ordering::Less) {
         return Err(EvalError::InvalidOption(format!(
             "transition window {} s must be shorter than the switch time {} s",
             spec.window_s, spec.switch_s

@@ -7,11 +7,14 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 use unigait_eval::{
-    EvalError, EvalOptions, NoObserver, Policies, StepObserver, TraversalEnd, evaluate,
+    EvalError, EvalOptions, NoObserver, Policies, Rollout, StepObserver, TraversalEnd, evaluate,
     scenario_names, sim_policy_spec,
 };
 use unigait_policy::{ConstantPolicy, ObsHistory, OnnxPolicy, Policy, PolicyError, PolicySpec};
-use unigait_sim::env::VecEnv;
+use unigait_sim::env::{VecEnv, VecEnvOptions};
+use unigait_sim::robot::RobotModel;
+use unigait_sim::task::{OBS_DIM, TaskConfig};
+use unigait_sim::terrain::Terrain;
 
 fn options(envs: usize) -> EvalOptions {
     EvalOptions {
@@ -194,4 +197,39 @@ fn onnx_test_policy_runs_end_to_end() {
     let json: serde_json::Value = serde_json::from_str(&report.to_json()).expect("valid JSON");
     assert_eq!(json["scenario"], "tracking_quad");
     assert_eq!(json["policy"], "unified");
+}
+
+#[test]
+fn an_env_that_resets_restarts_its_history_with_its_first_observation() {
+    let env = VecEnv::new(
+        Arc::new(RobotModel::go2()),
+        TaskConfig::embedded_default(),
+        Arc::new(Terrain::Flat),
+        VecEnvOptions {
+            num_envs: 2,
+            seed: 5,
+            threads: 1,
+            ..VecEnvOptions::default()
+        },
+    )
+    .expect("env");
+    let mut rollout = Rollout::new(env);
+    let policies = collapse();
+    let mut reset_seen = false;
+    for _ in 0..200 {
+        rollout.step(&policies).expect("step");
+        let out = rollout.env().output();
+        for i in 0..2 {
+            let obs = &out.obs[i * OBS_DIM..(i + 1) * OBS_DIM];
+            let h = rollout.history().env(i);
+            // o_t is always the newest observation.
+            assert_eq!(&h[..OBS_DIM], obs);
+            if out.terminated[i] != 0 {
+                reset_seen = true;
+                assert_eq!(&h[OBS_DIM..2 * OBS_DIM], obs, "o_t-1 refilled");
+                assert_eq!(&h[2 * OBS_DIM..], obs, "o_t-2 refilled");
+            }
+        }
+    }
+    assert!(reset_seen, "the scripted fall ends an episode within 4 s");
 }

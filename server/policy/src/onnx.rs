@@ -111,10 +111,11 @@ fn inspect(proto: &pb::ModelProto, spec: &PolicySpec) -> Result<Declared, Policy
         spec.obs_dim,
         spec.input_width()
     );
-    let tensor = input.r#type.as_ref().and_then(|t| match &t.value {
-        Some(pb::type_proto::Value::TensorType(t)) => Some(t),
-        None => None,
-    });
+    let tensor = input
+        .r#type
+        .as_ref()
+        .and_then(|t| t.value.as_ref())
+        .map(|pb::type_proto::Value::TensorType(t)| t);
     let mut layout = InputLayout::Stacked;
     let mut batch = Dim::Unknown;
     if let Some(tensor) = tensor {
