@@ -20,7 +20,7 @@ fn observation_slices_hold_what_they_name() {
         let cfg = calm_config(&format!("modes.biped_probability = {biped_probability}"));
         let mut env = batch(cfg, 3, 1, 1);
         for _ in 0..7 {
-            env.step(&vec![0.0; 3 * NUM_JOINTS]).expect("step");
+            env.step(&[0.0; 3 * NUM_JOINTS]).expect("step");
         }
         let out = env.output();
         let state = env.env_state(1);
@@ -70,8 +70,12 @@ fn observation_slices_hold_what_they_name() {
         );
         let q = obs_slice(out, 1, "q");
         let s = env.robot_state(1);
-        for j in 0..NUM_JOINTS {
-            assert!((q[j] - (s.q[j] - env.model().config.default_joint_pos[j])).abs() < 1e-6);
+        for ((qj, sj), q0) in q
+            .iter()
+            .zip(&s.q)
+            .zip(&env.model().config.default_joint_pos)
+        {
+            assert!((qj - (sj - q0)).abs() < 1e-6);
         }
         assert_eq!(obs_slice(out, 1, "last_action"), vec![0.0; 12]);
     }
@@ -178,7 +182,7 @@ fn termination_and_truncation_are_told_apart() {
     let mut env = batch(calm_config("init.pitch = [1.5, 1.5]"), 4, 2, 1);
     let mut terminated = false;
     for _ in 0..100 {
-        env.step(&vec![0.0; 4 * NUM_JOINTS]).expect("step");
+        env.step(&[0.0; 4 * NUM_JOINTS]).expect("step");
         let out = env.output();
         for i in 0..4 {
             if out.terminated[i] == 1 {
