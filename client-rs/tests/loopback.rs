@@ -18,6 +18,10 @@ struct TestServer {
 
 impl TestServer {
     async fn start(limits: Limits) -> Self {
+        Self::start_with_token(limits, None).await
+    }
+
+    async fn start_with_token(limits: Limits, token: Option<&str>) -> Self {
         let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
             .await
             .expect("bind");
@@ -28,7 +32,7 @@ impl TestServer {
             threads: 2,
             base_config: TaskConfig::embedded_default(),
             tls: None,
-            token: None,
+            token: token.map(str::to_string),
         };
         let task = tokio::spawn(async move {
             serve(listener, options, async {
@@ -200,5 +204,33 @@ async fn vanished_client_frees_its_session_and_harms_nobody() {
         .await
         .expect("the bystander still steps");
     bystander.close().await.expect("close");
+    server.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn bearer_token_is_required_when_configured() {
+    let server = TestServer::start_with_token(Limits::default(), Some("s3cret")).await;
+    let addr = server.addr.to_string();
+    let mut anonymous = Client::connect(&addr).await.expect("connect");
+    let err = anonymous.server_info().await.expect_err("no token");
+    assert_eq!(err.code(), Some(Code::Unauthenticated));
+    let mut wrong = Client::connect_with_token(&addr, Some("guess"))
+        .await
+        .expect("connect");
+    assert_eq!(
+        wrong.server_info().await.expect_err("wrong token").code(),
+        Some(Code::Unauthenticated)
+    );
+    let mut right = Client::connect_with_token(&addr, Some("s3cret"))
+        .await
+        .expect("connect");
+    let mut session = right
+        .create_session(config(1, 1))
+        .await
+        .expect("create with the token");
+    let mut stream = session.stream().await.expect("stream with the token");
+    stream.step(&[0.0; 12]).await.expect("step with the token");
+    drop(stream);
+    session.close().await.expect("close");
     server.shutdown().await;
 }
