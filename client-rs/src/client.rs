@@ -6,7 +6,7 @@ use std::ops::Range;
 use tokio::sync::mpsc;
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::metadata::MetadataValue;
-use tonic::transport::{Channel, Endpoint};
+use tonic::transport::{Certificate, Channel, ClientTlsConfig, Endpoint};
 use tonic::{Request, Streaming};
 use unigait_proto::v1::{self, simulator_client::SimulatorClient};
 use unigait_proto::{TensorView, f32_tensor, u8_tensor};
@@ -32,12 +32,35 @@ impl Client {
 
     /// Connect, sending `token` as a bearer token with every call.
     pub async fn connect_with_token(addr: &str, token: Option<&str>) -> Result<Self, ClientError> {
+        Self::connect_with(addr, token, None).await
+    }
+
+    /// Connect over TLS when `tls` holds (the server's CA certificate in PEM, the server's
+    /// name), sending `token` as a bearer token with every call.
+    pub async fn connect_with(
+        addr: &str,
+        token: Option<&str>,
+        tls: Option<(&[u8], &str)>,
+    ) -> Result<Self, ClientError> {
+        let scheme = if tls.is_some() { "https" } else { "http" };
         let uri = if addr.contains("://") {
             addr.to_string()
         } else {
-            format!("http://{addr}")
+            format!("{scheme}://{addr}")
         };
-        let endpoint = Endpoint::from_shared(uri).map_err(|_| ClientError::Address(addr.into()))?;
+        let mut endpoint =
+            Endpoint::from_shared(uri).map_err(|_| ClientError::Address(addr.into()))?;
+        if let Some((ca, domain)) = tls {
+            let config = ClientTlsConfig::new()
+                .ca_certificate(Certificate::from_pem(ca))
+                .domain_name(domain);
+            endpoint = endpoint
+                .tls_config(config)
+                .map_err(|source| ClientError::Connect {
+                    addr: addr.into(),
+                    source,
+                })?;
+        }
         let channel = endpoint
             .connect()
             .await

@@ -22,6 +22,14 @@ impl TestServer {
     }
 
     async fn start_with_token(limits: Limits, token: Option<&str>) -> Self {
+        Self::start_secured(limits, token, None).await
+    }
+
+    async fn start_secured(
+        limits: Limits,
+        token: Option<&str>,
+        tls: Option<(Vec<u8>, Vec<u8>)>,
+    ) -> Self {
         let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
             .await
             .expect("bind");
@@ -31,7 +39,7 @@ impl TestServer {
             limits,
             threads: 2,
             base_config: TaskConfig::embedded_default(),
-            tls: None,
+            tls,
             token: token.map(str::to_string),
         };
         let task = tokio::spawn(async move {
@@ -232,5 +240,67 @@ async fn bearer_token_is_required_when_configured() {
     stream.step(&[0.0; 12]).await.expect("step with the token");
     drop(stream);
     session.close().await.expect("close");
+    server.shutdown().await;
+}
+
+/// A self-signed certificate for `localhost` made with the openssl command-line tool.
+fn self_signed_localhost() -> (Vec<u8>, Vec<u8>) {
+    let dir = std::env::temp_dir().join(format!("unigait-tls-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    let (cert, key) = (dir.join("cert.pem"), dir.join("key.pem"));
+    let status = std::process::Command::new("openssl")
+        .args([
+            "req",
+            "-x509",
+            "-newkey",
+            "rsa:2048",
+            "-nodes",
+            "-days",
+            "1",
+            "-subj",
+            "/CN=localhost",
+        ])
+        .args(["-addext", "subjectAltName=DNS:localhost"])
+        .args(["-addext", "basicConstraints=critical,CA:FALSE"])
+        .args(["-addext", "extendedKeyUsage=serverAuth"])
+        .arg("-keyout")
+        .arg(&key)
+        .arg("-out")
+        .arg(&cert)
+        .stderr(std::process::Stdio::null())
+        .status()
+        .expect("openssl runs");
+    assert!(status.success(), "openssl could not make a certificate");
+    (
+        std::fs::read(cert).expect("cert"),
+        std::fs::read(key).expect("key"),
+    )
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn tls_with_token_serves_and_plaintext_is_refused() {
+    let (cert, key) = self_signed_localhost();
+    let server =
+        TestServer::start_secured(Limits::default(), Some("t0ken"), Some((cert.clone(), key)))
+            .await;
+    let addr = format!("localhost:{}", server.addr.port());
+    let mut secure = Client::connect_with(&addr, Some("t0ken"), Some((&cert, "localhost")))
+        .await
+        .expect("TLS connect");
+    let info = secure.server_info().await.expect("info over TLS");
+    assert_eq!(info.protocol_version, "v1");
+    let mut session = secure
+        .create_session(config(1, 2))
+        .await
+        .expect("session over TLS");
+    session.step(&[0.0; 12]).await.expect("step over TLS");
+    session.close().await.expect("close");
+    // A plaintext client gets no service from a TLS server.
+    let plain = Client::connect_with_token(&addr, Some("t0ken")).await;
+    let refused = match plain {
+        Err(_) => true,
+        Ok(mut c) => c.server_info().await.is_err(),
+    };
+    assert!(refused, "a plaintext client was served by a TLS server");
     server.shutdown().await;
 }
