@@ -11,6 +11,13 @@ ensure_rust_tools() {
   done
 }
 
+# System packages the tests use (the TLS test makes a certificate with openssl).
+ensure_system_packages() {
+  if ! command -v openssl >/dev/null; then
+    apt-get update -qq && apt-get install -y -qq openssl >/dev/null
+  fi
+}
+
 # Create the repo's venv and install the Python client with its extras (plus any given extras).
 ensure_python_env() {
   local extras="dev,torch,rsl_rl,gymnasium"

@@ -6,6 +6,7 @@ cd "$(dirname "$0")/.."
 source scripts/lib.sh
 
 ensure_rust_tools
+ensure_system_packages
 echo "== cargo fmt --check"
 cargo fmt --all -- --check
 echo "== cargo build (release)"
