@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import queue
 import threading
-from types import TracebackType
 from typing import Any
 
 import grpc
 import numpy as np
 
+from unigait.client.closing import ClosesOnExit
 from unigait.client.errors import ProtocolError, UnigaitError, call
 from unigait.client.proto import pb, pb_grpc
 from unigait.client.spec import Spec
@@ -20,7 +20,7 @@ from unigait.client.types import EvaluateResult, ServerInfo, SessionConfig, Step
 DEFAULT_MAX_MESSAGE_BYTES = 256 * 1024 * 1024
 
 
-class Client:
+class Client(ClosesOnExit):
     """A channel to one ``unigait`` server.
 
     Args:
@@ -103,16 +103,6 @@ class Client:
         """Close the channel."""
         self.channel.close()
 
-    def __enter__(self) -> Client:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
 
 _END = object()
@@ -143,7 +133,7 @@ class _StepStream:
             self._responses.cancel()
 
 
-class Session:
+class Session(ClosesOnExit):
     """A batch of envs on one server.
 
     Attributes:
@@ -236,13 +226,3 @@ class Session:
             if self._owns_client:
                 self.client.close()
 
-    def __enter__(self) -> Session:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
-from types import TracebackType
 from typing import Protocol
 
 import numpy as np
 
+from unigait.client.closing import ClosesOnExit
 from unigait.client.session import Client, Session
 from unigait.client.spec import Spec
 from unigait.client.types import SessionConfig, StepResult
@@ -46,7 +46,7 @@ def split_envs(num_envs: int, num_shards: int) -> list[int]:
     return [base + (1 if i < extra else 0) for i in range(num_shards)]
 
 
-class ShardedSession:
+class ShardedSession(ClosesOnExit):
     """A session per server, presented as one batch in env order.
 
     Shard ``i`` holds envs ``offsets[i] .. offsets[i] + counts[i]`` and is seeded with
@@ -123,16 +123,6 @@ class ShardedSession:
             for c in self._clients:
                 c.close()
 
-    def __enter__(self) -> ShardedSession:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
 
 def open_session(
