@@ -123,6 +123,15 @@ impl Client {
         })
     }
 
+    /// Roll out an ONNX policy on the server over a scenario.
+    pub async fn evaluate(
+        &mut self,
+        message: v1::EvaluateRequest,
+    ) -> Result<v1::EvaluateResponse, ClientError> {
+        let r = self.request(message);
+        Ok(self.inner.evaluate(r).await?.into_inner())
+    }
+
     /// Raw access to the generated client (for tests of odd requests).
     pub fn raw(&mut self) -> &mut SimulatorClient<Channel> {
         &mut self.inner

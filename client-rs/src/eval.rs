@@ -10,15 +10,13 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
-use tonic::Request;
-use tonic::metadata::MetadataValue;
 use unigait_proto::v1;
 
-use crate::{Client, ClientError};
+use crate::Client;
 
-/// `unigait eval`: evaluate a policy and print its metrics.
+/// The policy, scenario and envs an evaluation runs.
 #[derive(Clone, Debug, clap::Args)]
-pub struct EvalArgs {
+pub struct RolloutArgs {
     /// The ONNX policy (input [batch, 3, 53], output [batch, 12]); the quad policy of the
     /// two-policy baseline when --biped-policy is given.
     #[arg(long)]
@@ -35,6 +33,14 @@ pub struct EvalArgs {
     /// Seed of the server's envs.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+}
+
+/// `unigait eval`: evaluate a policy and print its metrics.
+#[derive(Clone, Debug, clap::Args)]
+pub struct EvalArgs {
+    /// What to evaluate.
+    #[command(flatten)]
+    pub rollout: RolloutArgs,
     /// Print the full JSON report on stdout (the table goes to stderr).
     #[arg(long)]
     pub json: bool,
@@ -43,21 +49,9 @@ pub struct EvalArgs {
 /// `unigait record`: evaluate a policy and save a rerun recording of env 0.
 #[derive(Clone, Debug, clap::Args)]
 pub struct RecordArgs {
-    /// The ONNX policy.
-    #[arg(long)]
-    pub policy: PathBuf,
-    /// Scenario name.
-    #[arg(long)]
-    pub scenario: String,
-    /// A biped policy for the two-policy baseline.
-    #[arg(long)]
-    pub biped_policy: Option<PathBuf>,
-    /// Envs; 0 = the scenario's default.
-    #[arg(long, default_value_t = 0)]
-    pub envs: u32,
-    /// Seed of the server's envs.
-    #[arg(long, default_value_t = 0)]
-    pub seed: u64,
+    /// What to evaluate.
+    #[command(flatten)]
+    pub rollout: RolloutArgs,
     /// Where to write the recording (open it with `rerun rollout.rrd`).
     #[arg(long)]
     pub out: PathBuf,
@@ -68,41 +62,18 @@ fn read_policy(path: &Path) -> Result<Vec<u8>> {
 }
 
 /// An Evaluate request from policy files.
-pub fn request(
-    policy: &Path,
-    biped_policy: Option<&Path>,
-    scenario: &str,
-    envs: u32,
-    seed: u64,
-    record: bool,
-) -> Result<v1::EvaluateRequest> {
+pub fn request(args: &RolloutArgs, record: bool) -> Result<v1::EvaluateRequest> {
     Ok(v1::EvaluateRequest {
-        policy_onnx: read_policy(policy)?.into(),
-        biped_policy_onnx: match biped_policy {
+        policy_onnx: read_policy(&args.policy)?.into(),
+        biped_policy_onnx: match &args.biped_policy {
             Some(p) => read_policy(p)?.into(),
             None => Default::default(),
         },
-        scenario: scenario.to_string(),
-        num_envs: envs,
-        seed,
+        scenario: args.scenario.clone(),
+        num_envs: args.envs,
+        seed: args.seed,
         record,
     })
-}
-
-/// Send an Evaluate request (with `token` as a bearer token when given).
-pub async fn evaluate(
-    client: &mut Client,
-    token: Option<&str>,
-    message: v1::EvaluateRequest,
-) -> Result<v1::EvaluateResponse, ClientError> {
-    let mut r = Request::new(message);
-    if let Some(t) = token {
-        let value: MetadataValue<_> = format!("Bearer {t}")
-            .parse()
-            .map_err(|_| ClientError::Address("the token is not valid header text".into()))?;
-        r.metadata_mut().insert("authorization", value);
-    }
-    Ok(client.raw().evaluate(r).await?.into_inner())
 }
 
 /// The metrics as an aligned two-column table, sorted by name.
@@ -123,18 +94,11 @@ pub fn format_table(metrics: &HashMap<String, f64>) -> String {
 }
 
 /// `unigait eval`: print the metrics table (and the JSON report with `--json`).
-pub async fn run_eval(client: &mut Client, token: Option<&str>, args: &EvalArgs) -> Result<()> {
-    let message = request(
-        &args.policy,
-        args.biped_policy.as_deref(),
-        &args.scenario,
-        args.envs,
-        args.seed,
-        false,
-    )?;
-    let reply = evaluate(client, token, message)
+pub async fn run_eval(client: &mut Client, args: &EvalArgs) -> Result<()> {
+    let reply = client
+        .evaluate(request(&args.rollout, false)?)
         .await
-        .with_context(|| format!("evaluating on `{}`", args.scenario))?;
+        .with_context(|| format!("evaluating on `{}`", args.rollout.scenario))?;
     let table = format_table(&reply.metrics);
     if args.json {
         eprint!("{table}");
@@ -146,18 +110,11 @@ pub async fn run_eval(client: &mut Client, token: Option<&str>, args: &EvalArgs)
 }
 
 /// `unigait record`: write the recording to `--out` and print the metrics table.
-pub async fn run_record(client: &mut Client, token: Option<&str>, args: &RecordArgs) -> Result<()> {
-    let message = request(
-        &args.policy,
-        args.biped_policy.as_deref(),
-        &args.scenario,
-        args.envs,
-        args.seed,
-        true,
-    )?;
-    let reply = evaluate(client, token, message)
+pub async fn run_record(client: &mut Client, args: &RecordArgs) -> Result<()> {
+    let reply = client
+        .evaluate(request(&args.rollout, true)?)
         .await
-        .with_context(|| format!("recording `{}`", args.scenario))?;
+        .with_context(|| format!("recording `{}`", args.rollout.scenario))?;
     if reply.recording_rrd.is_empty() {
         anyhow::bail!("the server sent no recording");
     }

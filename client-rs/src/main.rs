@@ -182,12 +182,8 @@ async fn main() -> Result<()> {
                 println!("{}", serde_json::to_string_pretty(&report)?);
             }
         }
-        Command::Eval(args) => {
-            unigait_client::eval::run_eval(&mut client, cli.token.as_deref(), &args).await?
-        }
-        Command::Record(args) => {
-            unigait_client::eval::run_record(&mut client, cli.token.as_deref(), &args).await?
-        }
+        Command::Eval(args) => unigait_client::eval::run_eval(&mut client, &args).await?,
+        Command::Record(args) => unigait_client::eval::run_record(&mut client, &args).await?,
         Command::Check => {
             let outcomes = compliance::run_all(&client).await;
             let failed = outcomes.iter().filter(|o| !o.passed).count();

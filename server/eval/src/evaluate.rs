@@ -133,24 +133,18 @@ pub fn evaluate_scenario(
     policies.check()?;
     let t0 = Instant::now();
     let n = options.envs(scenario)?;
-    let mut report = EvalReport {
-        scenario: scenario.name.to_string(),
-        description: scenario.description.to_string(),
-        policy: policies.kind().to_string(),
-        num_envs: n,
-        seed: options.seed,
-        metrics: BTreeMap::new(),
-        traversal: None,
-        transition: None,
-        tracking: BTreeMap::new(),
-        parts: Vec::new(),
-        wall_s: 0.0,
-        notes: vec![
-            "calm start: default joints, no initial velocity or tilt; pushes off; the base \
-             config's other domain randomisation and observation noise stay on"
-                .into(),
-        ],
-    };
+    let mut report = empty_report(
+        scenario.name,
+        scenario.description,
+        policies,
+        n,
+        options.seed,
+    );
+    report.notes.push(
+        "calm start: default joints, no initial velocity or tilt; pushes off; the base \
+         config's other domain randomisation and observation noise stay on"
+            .into(),
+    );
     let mut tracking = [TrackingAccumulator::default(); 2];
     match &scenario.kind {
         ScenarioKind::Traversal(spec) => {
@@ -218,19 +212,20 @@ pub fn evaluate_scenario(
     Ok(report)
 }
 
-/// Every Table VI column, one after the other; metrics are prefixed with the scenario name.
-fn evaluate_table_vi(
+/// A report with its header filled in and no results yet.
+fn empty_report(
+    scenario: &str,
+    description: &str,
     policies: &Policies,
-    options: &EvalOptions,
-    observer: &mut dyn StepObserver,
-) -> Result<EvalReport, EvalError> {
-    let t0 = Instant::now();
-    let mut report = EvalReport {
-        scenario: TABLE_VI.into(),
-        description: "Table VI: terrain traversal success of every column".into(),
+    num_envs: usize,
+    seed: u64,
+) -> EvalReport {
+    EvalReport {
+        scenario: scenario.into(),
+        description: description.into(),
         policy: policies.kind().to_string(),
-        num_envs: 0,
-        seed: options.seed,
+        num_envs,
+        seed,
         metrics: BTreeMap::new(),
         traversal: None,
         transition: None,
@@ -238,7 +233,18 @@ fn evaluate_table_vi(
         parts: Vec::new(),
         wall_s: 0.0,
         notes: Vec::new(),
-    };
+    }
+}
+
+/// Every Table VI column, one after the other; metrics are prefixed with the scenario name.
+fn evaluate_table_vi(
+    policies: &Policies,
+    options: &EvalOptions,
+    observer: &mut dyn StepObserver,
+) -> Result<EvalReport, EvalError> {
+    let t0 = Instant::now();
+    let description = "Table VI: terrain traversal success of every column";
+    let mut report = empty_report(TABLE_VI, description, policies, 0, options.seed);
     for s in table_vi_scenarios() {
         let part = evaluate_scenario(&s, policies, options, observer)?;
         report.num_envs += part.num_envs;

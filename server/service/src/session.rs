@@ -95,22 +95,12 @@ impl Session {
                 env.reset_envs(m.u8_values("mask")?)?;
             }
         }
-        let mut result = convert::step_result(
+        Ok(convert::step_result(
             env.output(),
             self.reward_terms,
             self.steps.load(Ordering::Relaxed),
             0,
-        );
-        // A reset ends no episode: report no flags and no final rows.
-        let cleared = convert::step_result(&unigait_sim::env::StepOutput::new(0), false, 0, 0);
-        result.terminated = Some(unigait_proto::u8_tensor(&vec![0; n], &[n]));
-        result.truncated = Some(unigait_proto::u8_tensor(&vec![0; n], &[n]));
-        result.final_env_ids = cleared.final_env_ids;
-        result.final_obs = cleared.final_obs;
-        result.final_labels = cleared.final_labels;
-        result.final_privileged = cleared.final_privileged;
-        result.final_episode_length = cleared.final_episode_length;
-        Ok(result)
+        ))
     }
 
     fn idle_for(&self) -> Duration {

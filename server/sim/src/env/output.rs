@@ -70,6 +70,15 @@ impl StepOutput {
         self.reward.is_empty()
     }
 
+    /// After a reset: no episode ended and no reward was earned, whatever the last step said.
+    pub fn forget_episode_ends(&mut self) {
+        self.terminated.fill(0);
+        self.truncated.fill(0);
+        self.episode_length.fill(0);
+        self.reward.fill(0.0);
+        self.reward_terms.fill(0.0);
+    }
+
     /// Split into consecutive chunks of `envs` envs each (the last may be shorter).
     pub fn chunks_mut(&mut self, envs: usize) -> Vec<OutputChunk<'_>> {
         let mut obs = self.obs.chunks_mut(envs * OBS_DIM);

@@ -171,6 +171,7 @@ impl VecEnv {
 
     fn reset_all(&mut self, first: bool) {
         self.for_each_group(|sh, g, chunk, _| g.reset_all(sh, first, chunk));
+        self.out.forget_episode_ends();
     }
 
     /// Reset every env (a new episode everywhere) and return the first observations.
@@ -194,6 +195,7 @@ impl VecEnv {
         self.for_each_group(|sh, g, chunk, first| {
             g.reset_masked(sh, &mask[first..(first + epw).min(n)], chunk)
         });
+        self.out.forget_episode_ends();
         Ok(&self.out)
     }
 
