@@ -466,31 +466,6 @@ impl RobotWorld {
         }
     }
 
-    /// Worst distance between the two anchors of any joint of any robot (m).
-    pub fn max_joint_gap(&self, model: &RobotModel) -> f32 {
-        let mut gap: f32 = 0.0;
-        for robot in &self.robots {
-            for joint in &model.joints {
-                let pb = &self.bodies[robot.bodies[joint.parent_body]];
-                let cb = &self.bodies[robot.bodies[joint.child_body]];
-                gap = gap.max(
-                    pb.position()
-                        .transform_point(joint.origin.translation)
-                        .distance(cb.translation()),
-                );
-            }
-        }
-        gap
-    }
-
-    /// Whether every body of robot `slot` has a finite pose and velocity.
-    pub fn robot_is_finite(&self, slot: usize) -> bool {
-        self.robots[slot].bodies.iter().all(|&h| {
-            let b = &self.bodies[h];
-            b.position().is_finite() && b.linvel().is_finite() && b.angvel().is_finite()
-        })
-    }
-
     /// Overwrite the linear velocity of robot `slot`'s trunk (used by pushes), keeping the other
     /// bodies' velocities relative to it.
     pub fn add_base_velocity(&mut self, slot: usize, delta: Vec3) {
