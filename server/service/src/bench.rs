@@ -78,6 +78,8 @@ pub struct BenchReport {
     pub terrain: String,
     /// Worst joint anchor separation seen at any step (m).
     pub max_joint_gap_m: f32,
+    /// Mean share of envs given extra solver iterations (legs on the ground, joints at stops).
+    pub extra_iteration_share: f64,
     /// Envs reset after a physics blow-up.
     pub nonfinite_resets: u64,
     /// Share of step time in physics (CPU time over groups).
@@ -126,11 +128,13 @@ pub fn run(args: &BenchArgs) -> Result<BenchReport> {
         env.step(&pool[i % pool.len()])?;
         max_gap = max_gap.max(env.max_joint_gap());
     }
+    let mut extra_share = 0.0;
     let before = env.stage_times();
     let start = Instant::now();
     for i in 0..args.steps {
         env.step(&pool[i % pool.len()])?;
         max_gap = max_gap.max(env.max_joint_gap());
+        extra_share += env.extra_iteration_share();
     }
     let wall = start.elapsed().as_secs_f64();
     let after = env.stage_times();
@@ -147,6 +151,7 @@ pub fn run(args: &BenchArgs) -> Result<BenchReport> {
         physics_only: args.physics_only,
         terrain: args.terrain.clone(),
         max_joint_gap_m: max_gap,
+        extra_iteration_share: extra_share / args.steps.max(1) as f64,
         nonfinite_resets: env.nonfinite_resets(),
         physics_share: if physics + task > 0.0 {
             physics / (physics + task)

@@ -38,6 +38,9 @@ pub struct RobotState {
     /// Worst joint anchor separation of this robot left by the solver during the last policy
     /// step, measured before the joint projection (m).
     pub max_joint_gap: f32,
+    /// The robot gets extra solver iterations for its next physics step (legs on the terrain or
+    /// joints at their stops).
+    pub extra_iterations: bool,
 }
 
 impl RobotState {
@@ -79,6 +82,7 @@ impl Default for RobotState {
             penalised_bodies: 0,
             other_contacts: 0,
             max_joint_gap: 0.0,
+            extra_iterations: false,
             faulted: false,
         }
     }

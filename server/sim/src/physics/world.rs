@@ -19,16 +19,22 @@ use super::robot_state::RobotState;
 pub struct PhysicsParams {
     /// Physics time step (s). Default 0.005 (200 Hz).
     pub dt: f32,
-    /// Rapier solver iterations per step. Default 4: the joint-gap gate (< 5 mm) holds there.
+    /// Rapier solver iterations per step, i.e. substeps of the soft-TGS solver. Default 1, as
+    /// legged_gym's PhysX setting (one substep, 4 position iterations): substeps re-linearise
+    /// every joint and contact, PGS iterations within a substep are much cheaper.
     pub solver_iterations: usize,
-    /// Rapier internal PGS iterations per solver iteration. Default 1.
+    /// Rapier internal PGS iterations per substep. Default 8: with one substep the worst joint
+    /// anchor gap under random actions stays near 3 mm (README, design notes).
     pub pgs_iterations: usize,
     /// Gravity along -z (m/s^2). Default 9.81.
     pub gravity: f32,
-    /// Extra solver iterations for a robot whose hips, thighs or calves touch the terrain (a
-    /// fallen or sprawled robot): contacts on light links need them to keep joint anchors within
-    /// 5 mm, and such poses are rare in training, so the cost stays small. Default 4.
+    /// Extra substeps for a robot whose hips, thighs or calves touch the terrain or whose joints
+    /// near their stops (a fallen or sprawled robot). Default 0: extra PGS iterations are cheaper.
     pub extra_iterations_on_leg_contact: usize,
+    /// Extra PGS iterations per substep for the same robots. Default 8: contacts on the light leg
+    /// links need them to keep joint anchors within 5 mm (without them a robot lying on its legs
+    /// drifts up to 12 mm); about 16% of robots need them under random actions.
+    pub extra_pgs_iterations_on_leg_contact: usize,
     /// Floor on each diagonal entry of a leg link's inertia tensor (kg m^2). Default 0.002.
     /// The Go2's hips and calves are very light about the axes they do not turn on (down to
     /// 4e-5), and an impulse solver shares the motors' reaction torques badly through such
@@ -42,10 +48,11 @@ impl Default for PhysicsParams {
     fn default() -> Self {
         Self {
             dt: 0.005,
-            solver_iterations: 4,
-            pgs_iterations: 1,
+            solver_iterations: 2,
+            pgs_iterations: 3,
             gravity: 9.81,
-            extra_iterations_on_leg_contact: 4,
+            extra_iterations_on_leg_contact: 0,
+            extra_pgs_iterations_on_leg_contact: 4,
             min_link_inertia: 0.002,
         }
     }
@@ -124,9 +131,10 @@ pub struct RobotWorld {
     gravity: Vec3,
     min_link_inertia: f32,
     extra_on_leg_contact: usize,
+    extra_pgs_on_leg_contact: usize,
     robots: Vec<RobotHandles>,
-    /// Extra solver iterations currently given to each robot.
-    extra_iterations: Vec<usize>,
+    /// Robots currently given extra solver iterations.
+    extra_iterations: Vec<bool>,
     /// Robots with a body rapier quarantined (non-finite state) since their last reset.
     faulted: Vec<bool>,
     /// Scratch: world poses and velocities of one robot's bodies.
@@ -165,7 +173,8 @@ impl RobotWorld {
             gravity: Vec3::new(0.0, 0.0, -params.gravity),
             min_link_inertia: params.min_link_inertia,
             extra_on_leg_contact: params.extra_iterations_on_leg_contact,
-            extra_iterations: vec![0; count],
+            extra_pgs_on_leg_contact: params.extra_pgs_iterations_on_leg_contact,
+            extra_iterations: vec![false; count],
             faulted: vec![false; count],
             robots: Vec::with_capacity(count),
             scratch_rot: vec![Rotation::IDENTITY; model.bodies.len()],
@@ -448,7 +457,7 @@ impl RobotWorld {
                 _ => s.other_contacts += 1,
             }
         }
-        for (slot, s) in out.iter().enumerate().take(self.robots.len()) {
+        for (slot, s) in out.iter_mut().enumerate().take(self.robots.len()) {
             // A joint at its stop, or fast enough to reach it within the next policy step.
             let reach = LIMIT_MARGIN;
             let at_limit = model.joints.iter().enumerate().any(|(j, joint)| {
@@ -457,11 +466,18 @@ impl RobotWorld {
                     || s.q[j].max(ahead) > joint.sim_upper - reach
             });
             let hard = s.penalised_contacts + s.other_contacts > 0 || at_limit;
-            let extra = if hard { self.extra_on_leg_contact } else { 0 };
-            if self.extra_iterations[slot] != extra {
-                self.extra_iterations[slot] = extra;
+            s.extra_iterations = hard;
+            if self.extra_iterations[slot] != hard {
+                self.extra_iterations[slot] = hard;
+                let (substeps, pgs) = if hard {
+                    (self.extra_on_leg_contact, self.extra_pgs_on_leg_contact)
+                } else {
+                    (0, 0)
+                };
                 // A robot is its own solver island, which takes the maximum over its bodies.
-                self.bodies[self.robots[slot].bodies[0]].set_additional_solver_iterations(extra);
+                let trunk = &mut self.bodies[self.robots[slot].bodies[0]];
+                trunk.set_additional_solver_iterations(substeps);
+                trunk.set_additional_pgs_iterations(pgs);
             }
         }
     }

@@ -398,6 +398,18 @@ fn check(field: &str, v: f32, lo: f32, hi: f32) -> Result<(), SimError> {
     Ok(())
 }
 
+/// Checks an integer setting (an iteration count) against its allowed range.
+fn check_count(field: &str, v: usize, lo: usize, hi: usize) -> Result<(), SimError> {
+    if !(lo..=hi).contains(&v) {
+        return Err(SimError::invalid(
+            field,
+            v,
+            format!("allowed range [{lo}, {hi}]"),
+        ));
+    }
+    Ok(())
+}
+
 impl TaskConfig {
     /// The embedded default config (`assets/task.toml`).
     pub fn embedded_default() -> Self {
@@ -435,28 +447,21 @@ impl TaskConfig {
     pub fn validate(&self) -> Result<(), SimError> {
         let p = &self.physics;
         check("physics.dt", p.dt, 1e-4, 0.02)?;
-        if !(1..=64).contains(&p.solver_iterations) {
-            return Err(SimError::invalid(
-                "physics.solver_iterations",
-                p.solver_iterations,
-                "allowed range [1, 64]",
-            ));
-        }
-        if !(1..=16).contains(&p.pgs_iterations) {
-            return Err(SimError::invalid(
-                "physics.pgs_iterations",
-                p.pgs_iterations,
-                "allowed range [1, 16]",
-            ));
-        }
+        check_count("physics.solver_iterations", p.solver_iterations, 1, 64)?;
+        check_count("physics.pgs_iterations", p.pgs_iterations, 1, 64)?;
         check("physics.gravity", p.gravity, 0.0, 100.0)?;
-        if p.extra_iterations_on_leg_contact > 64 {
-            return Err(SimError::invalid(
-                "physics.extra_iterations_on_leg_contact",
-                p.extra_iterations_on_leg_contact,
-                "allowed range [0, 64]",
-            ));
-        }
+        check_count(
+            "physics.extra_iterations_on_leg_contact",
+            p.extra_iterations_on_leg_contact,
+            0,
+            64,
+        )?;
+        check_count(
+            "physics.extra_pgs_iterations_on_leg_contact",
+            p.extra_pgs_iterations_on_leg_contact,
+            0,
+            64,
+        )?;
         check("physics.min_link_inertia", p.min_link_inertia, 0.0, 1.0)?;
         let e = &self.env;
         check("env.episode_length_s", e.episode_length_s, 0.02, 3600.0)?;
