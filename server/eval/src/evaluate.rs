@@ -161,12 +161,14 @@ pub fn evaluate_scenario(
             let t = run_transition(spec, n, policies, options, observer, &mut tracking)?;
             transition_metrics(&t, &mut report.metrics);
             report.notes.push(format!(
-                "the env draws the mode (p = 0.5) at reset and at {} s; trials are the envs that \
-                 drew {} then {} and were in the {} posture at the switch; posture reached = \
-                 {} held {HOLD_S} s; success = reached within {} s and no base contact from the \
-                 switch until {} s after",
-                spec.switch_s,
+                "every env starts in {} mode (pinned) and is switched to {} at {} s, its command \
+                 redrawn from the {} ranges; trials are the envs still in their first episode \
+                 and in the {} posture at the switch; posture reached = {} held {HOLD_S} s; \
+                 success = reached within {} s and no base contact from the switch until {} s \
+                 after",
                 spec.from.name(),
+                spec.to.name(),
+                spec.switch_s,
                 spec.to.name(),
                 spec.from.name(),
                 match spec.to {
@@ -400,7 +402,7 @@ fn run_transition(
 ) -> Result<TransitionReport, EvalError> {
     let config = transition_config(&options.base_config, spec)?;
     let dt = config.policy_dt();
-    let switch = config.mode_interval_steps() as usize;
+    let switch = steps_for(&config, spec.switch_s) as usize;
     let total = switch + steps_for(&config, spec.window_s) as usize;
     let hold = steps_for(&config, HOLD_S) as usize;
     let settle = steps_for(&config, spec.settle_s) as usize;
@@ -428,9 +430,16 @@ fn run_transition(
         tr.height[i].push(p.height);
         tr.command_before[i] = p.command;
     }
+    let every_env = vec![1u8; n];
     while (rollout.steps() as usize) < total {
         rollout.step(policies)?;
         let step = rollout.steps() as usize;
+        if step == switch {
+            // Switch every env now (an env already reset after a fall too: it is no trial, but
+            // all envs then run the same schedule). Before the observer, so a recording shows
+            // the observation the next action is computed from.
+            rollout.set_modes(&every_env, spec.to, None)?;
+        }
         observer.after_step(0, step as u32, rollout.env());
         for (i, after) in after.iter_mut().enumerate() {
             let p = probe(rollout.env(), i);
@@ -455,7 +464,7 @@ fn run_transition(
         to: spec.to,
         switch_s: switch as f32 * dt,
         envs: n,
-        eligible: 0,
+        switched: 0,
         fell_before_switch: 0,
         not_in_posture_at_switch: 0,
         trials: 0,
@@ -479,18 +488,18 @@ fn run_transition(
     };
     let mut trials: Vec<usize> = Vec::new();
     for i in 0..n {
-        if initial[i] != Some(spec.from) {
+        // Read back from the outputs rather than assumed, so a switch that did not happen
+        // shows in the report instead of being measured as one.
+        if initial[i] != Some(spec.from) || after[i] != Some(spec.to) {
             continue;
         }
+        report.switched += 1;
         if tr.end[i].is_some_and(|(s, _)| s <= switch) {
-            // Its episode ended before the switch (the reset redrew its mode): not a trial.
+            // Its first episode ended before the switch: what follows is not a switch from a
+            // walking gait.
             report.fell_before_switch += 1;
             continue;
         }
-        if after[i] != Some(spec.to) {
-            continue;
-        }
-        report.eligible += 1;
         if !in_from_posture(tr.pitch[i][switch]) {
             report.not_in_posture_at_switch += 1;
             continue;
@@ -568,7 +577,7 @@ fn transition_metrics(t: &TransitionReport, m: &mut BTreeMap<String, f64>) {
     }
     m.insert("trials".into(), t.trials as f64);
     m.insert("successes".into(), t.successes as f64);
-    m.insert("eligible_envs".into(), t.eligible as f64);
+    m.insert("switched_envs".into(), t.switched as f64);
     m.insert("fell_before_switch".into(), t.fell_before_switch as f64);
     m.insert(
         "not_in_posture_at_switch".into(),

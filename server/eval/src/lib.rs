@@ -14,13 +14,10 @@
 //!   observation history ([`unigait_policy::ObsHistory`]; an env that resets restarts its
 //!   history with its new first observation), and measures; a [`StepObserver`] sees every step
 //!   (the service records env 0 with it).
-//!
-//! Sim hook that would help: the env layer draws task modes at random, so a mid-episode switch
-//! is obtained by drawing at the switch time with p = 0.5 and keeping the envs whose draws fit
-//! (about a quarter of them). A method
-//! `VecEnv::set_mode(&mut self, i: usize, mode: TaskMode, command: Option<[f32; 3]>)` (set the
-//! env's mode, optionally its command, and rewrite row `i` of the observations, as a mode draw
-//! does) would let every env switch on cue.
+//! - Mode switches: transition scenarios pin the starting mode and switch every env on cue with
+//!   the sim's `VecEnv::set_modes` ([`Rollout::set_modes`] also refreshes the observation
+//!   histories), so every env is switched and every env still running at the switch can be a
+//!   trial.
 #![warn(missing_docs)]
 
 mod error;

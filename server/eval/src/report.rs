@@ -116,13 +116,16 @@ pub struct TransitionReport {
     pub switch_s: f32,
     /// Envs run.
     pub envs: usize,
-    /// Envs whose drawn modes were `from` then `to` (the others are not trials).
-    pub eligible: usize,
-    /// Envs that started in `from` and whose episode ended before the switch (not trials).
+    /// Envs read back in `from` at the start and in `to` right after the switch: every env, as
+    /// the evaluation switches them all (fewer would mean the switch failed).
+    pub switched: usize,
+    /// Switched envs whose first episode ended before the switch (not trials).
     pub fell_before_switch: usize,
-    /// Eligible envs not in the `from` posture at the switch (e.g. never stood up).
+    /// Switched envs still running but not in the `from` posture at the switch (e.g. never
+    /// stood up).
     pub not_in_posture_at_switch: usize,
-    /// Trials: eligible, running and in posture at the switch.
+    /// Trials: switched, running and in posture at the switch (`switched` =
+    /// `fell_before_switch` + `not_in_posture_at_switch` + `trials`).
     pub trials: usize,
     /// Successful trials.
     pub successes: usize,

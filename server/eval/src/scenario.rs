@@ -1,16 +1,17 @@
 //! The named scenarios of the paper's evaluation (Section IV) and the task configs they run.
 //!
 //! The env layer draws task modes and commands at random from the [`TaskConfig`]; a scenario
-//! controls them through the config alone:
+//! controls them through the config, and switches modes through the sim:
 //! - a pinned mode: `modes.biped_probability` 0 or 1 and a mode resampling time longer than
-//!   the run;
+//!   the run, so the env never redraws it (a reset draws it again, with the same outcome);
 //! - pinned commands: each mode's command ranges collapsed to one value (or the paper's range),
 //!   with a command resampling time longer than the run;
-//! - a mid-episode switch `from -> to` at time T: `modes.resampling_time_s = T` and
-//!   `biped_probability = 0.5`; the env draws the mode at reset and again at T, and the
-//!   evaluation keeps as trials the envs whose draws were `from` then `to` (a quarter of them on
-//!   average; the rest are reported as not eligible). A sim hook that sets an env's mode would
-//!   make every env a trial (see the crate doc).
+//! - a mid-episode switch `from -> to` at time T: the mode is pinned to `from` for the whole run
+//!   and at T the evaluation switches every env to `to` with `VecEnv::set_modes` (via
+//!   [`crate::Rollout::set_modes`]), exactly as a drawn mode change would: the command is
+//!   redrawn from the `to` ranges, the gait clock runs on, and the observation the next action
+//!   is computed from already carries the new mode. Every env is switched, so every env that is
+//!   still in its first episode and in the `from` posture at T is a trial.
 //!
 //! Every scenario starts calm (joints at the default pose, no initial velocity, level base: the
 //! training distribution of Table IV is for learning, not for measuring) and turns pushes off;
@@ -102,7 +103,7 @@ pub struct TransitionSpec {
     pub vx_to: [f32; 2],
     /// Time of the switch (s).
     pub switch_s: f32,
-    /// Observed time after the switch (s); below `switch_s`, so the env draws no third mode.
+    /// Observed time after the switch (s).
     pub window_s: f32,
     /// The base must not touch the ground until this long after the transition completes (s).
     pub settle_s: f32,
@@ -415,20 +416,21 @@ pub fn traversal_config(
     Ok(c)
 }
 
-/// The config of a transition scenario: the mode is drawn (p = 0.5) at reset and at the switch.
+/// The config of a transition scenario: the mode pinned to `from` for the whole run (the
+/// evaluation switches the envs itself at `switch_s`), commands pinned for both modes.
 pub fn transition_config(
     base: &TaskConfig,
     spec: &TransitionSpec,
 ) -> Result<TaskConfig, EvalError> {
-    if spec.window_s.partial_cmp(&spec.switch_s) != Some(std::cmp::Ordering::Less) {
+    // `!(x > 0)` rather than `x <= 0` so that NaN is refused too.
+    if !(spec.switch_s > 0.0 && spec.window_s > 0.0) {
         return Err(EvalError::InvalidOption(format!(
-            "transition window {} s must be shorter than the switch time {} s",
-            spec.window_s, spec.switch_s
+            "transition switch time {} s and window {} s must both be positive",
+            spec.switch_s, spec.window_s
         )));
     }
     let mut c = calm_config(base, spec.switch_s + spec.window_s);
-    c.modes.biped_probability = 0.5;
-    c.modes.resampling_time_s = spec.switch_s;
+    pin_mode(&mut c, spec.from);
     pin_command(&mut c, spec.from, spec.vx_from);
     pin_command(&mut c, spec.to, spec.vx_to);
     c.validate()?;

@@ -1,19 +1,20 @@
 //! Scenario runs with scripted policies: a policy that stands still never crosses anything, a
-//! scripted fall is a failure, the transition bookkeeping adds up, the two-policy baseline
-//! routes each env to its mode's policy, and the committed ONNX test policy runs end to end.
+//! scripted fall is a failure, transition scenarios switch every env and their bookkeeping adds
+//! up, a switch inside a rollout reaches the next action, the two-policy baseline routes each
+//! env to its mode's policy, and the committed ONNX test policy runs end to end.
 
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 use unigait_eval::{
-    EvalError, EvalOptions, NoObserver, Policies, Rollout, StepObserver, TraversalEnd, evaluate,
-    scenario_names, sim_policy_spec,
+    EvalError, EvalOptions, Mode, NoObserver, Policies, Rollout, StepObserver, TraversalEnd,
+    evaluate, scenario_names, sim_policy_spec,
 };
 use unigait_policy::{ConstantPolicy, ObsHistory, OnnxPolicy, Policy, PolicyError, PolicySpec};
 use unigait_sim::env::{VecEnv, VecEnvOptions};
 use unigait_sim::robot::RobotModel;
-use unigait_sim::task::{OBS_DIM, TaskConfig};
+use unigait_sim::task::{OBS_DIM, OBSERVATION, TaskConfig, slice_of};
 use unigait_sim::terrain::Terrain;
 
 fn options(envs: usize) -> EvalOptions {
@@ -67,26 +68,150 @@ fn a_scripted_fall_is_a_failure() {
 }
 
 #[test]
-fn transition_bookkeeping_adds_up() {
+fn biped_to_quad_switches_every_env() {
     let report = evaluate(
         "transition_biped_to_quad",
         &stand_still(),
-        &options(24),
+        &options(3),
         &mut NoObserver,
     )
     .expect("runs");
     let t = report.transition.as_ref().expect("transition report");
-    assert_eq!(t.envs, 24);
-    assert!(t.eligible <= 24);
-    // Standing still, a robot never gets onto its front legs: no eligible env is in the biped
-    // posture at the switch, so there is no trial and no rate.
-    assert_eq!(t.trials + t.not_in_posture_at_switch, t.eligible);
+    assert_eq!(t.envs, 3);
+    assert_eq!(t.switched, 3, "every env switched on cue");
+    assert_eq!(report.metrics["switched_envs"], 3.0);
+    assert_eq!(
+        t.fell_before_switch + t.not_in_posture_at_switch + t.trials,
+        t.switched
+    );
+    // Standing still, a robot never gets onto its front legs: no env is in the biped posture
+    // at the switch, so there is no trial and no rate.
     assert_eq!(t.trials, 0);
     assert_eq!(t.success_rate, None);
     assert!(!report.metrics.contains_key("success_rate"));
     assert!(report.to_json().contains("\"transition\""));
+    assert!(report.to_json().contains("\"switched\": 3"));
     // The quad policy tracks nothing while standing: its error is about the command.
     assert!(report.tracking.contains_key("quad") || report.tracking.contains_key("biped"));
+}
+
+#[test]
+fn quad_to_biped_switches_every_env_and_measures_each_one() {
+    let report = evaluate(
+        "transition_quad_to_biped",
+        &stand_still(),
+        &options(3),
+        &mut NoObserver,
+    )
+    .expect("runs");
+    let t = report.transition.as_ref().expect("transition report");
+    assert_eq!((t.envs, t.switched), (3, 3), "{t:?}");
+    assert_eq!(t.switch_s, 4.0);
+    // Standing still on four legs is the quad posture: every env is a trial...
+    assert_eq!(
+        t.fell_before_switch + t.not_in_posture_at_switch,
+        0,
+        "{t:?}"
+    );
+    assert_eq!(t.trials, 3);
+    assert_eq!(t.outcomes.len(), 3);
+    for o in &t.outcomes {
+        // ...commanded 1.5 m/s before and, from the switch on, the biped command drawn from
+        // its pinned range (the hook redraws it as a drawn mode change would).
+        assert_eq!(o.command_before, [1.5, 0.0, 0.0], "{o:?}");
+        assert_eq!(o.command_after, [0.5, 0.0, 0.0], "{o:?}");
+        // ...and never stands up, so none completes the transition.
+        assert_eq!(o.transition_time_s, None, "{o:?}");
+        assert!(!o.success);
+    }
+    assert_eq!(t.success_rate, Some(0.0));
+    assert_eq!(report.metrics["trials"], 3.0);
+    // The trace covers 1 s before the switch to the end of the window, all three trials alive
+    // at the switch.
+    let h = &t.height_trace;
+    let at_switch = h
+        .t_s
+        .iter()
+        .position(|&x| x == 0.0)
+        .expect("switch in the trace");
+    assert_eq!(h.count[at_switch], 3);
+    assert!(
+        h.mean_m[at_switch] > 0.15,
+        "standing height {}",
+        h.mean_m[at_switch]
+    );
+}
+
+#[test]
+fn a_switch_in_a_rollout_reaches_the_next_action() {
+    let cfg = TaskConfig::embedded_default()
+        .with_overrides("modes.biped_probability = 0.0\nmodes.resampling_time_s = 3600.0")
+        .expect("config");
+    let env = VecEnv::new(
+        Arc::new(RobotModel::go2()),
+        cfg,
+        Arc::new(Terrain::Flat),
+        VecEnvOptions {
+            num_envs: 3,
+            seed: 2,
+            threads: 1,
+            ..VecEnvOptions::default()
+        },
+    )
+    .expect("env");
+    let mut rollout = Rollout::new(env);
+    let quad = Arc::new(Tagged {
+        value: 0.0,
+        rows: AtomicUsize::new(0),
+    });
+    let biped = Arc::new(Tagged {
+        value: 0.0,
+        rows: AtomicUsize::new(0),
+    });
+    let policies = Policies::TwoPolicy {
+        quad: quad.clone(),
+        biped: biped.clone(),
+    };
+    for _ in 0..5 {
+        rollout.step(&policies).expect("step");
+    }
+    assert_eq!(
+        (
+            quad.rows.load(Ordering::Relaxed),
+            biped.rows.load(Ordering::Relaxed)
+        ),
+        (15, 0)
+    );
+    let before: Vec<Vec<f32>> = (0..3).map(|i| rollout.history().env(i).to_vec()).collect();
+    rollout
+        .set_modes(&[0, 1, 0], Mode::Biped, Some([0.25, 0.0, 0.0]))
+        .expect("switch");
+    let (mode_at, _) = slice_of(&OBSERVATION, "mode").expect("mode slice");
+    let (cmd_at, _) = slice_of(&OBSERVATION, "cmd").expect("cmd slice");
+    let out = rollout.env().output();
+    let h = rollout.history().env(1);
+    // The newest entry is the rewritten observation: biped one-hot, command 0.25 x scale 2.
+    assert_eq!(&h[..OBS_DIM], &out.obs[OBS_DIM..2 * OBS_DIM]);
+    assert_eq!(&h[mode_at..mode_at + 2], &[1.0, 0.0]);
+    assert_eq!(h[cmd_at], 0.5);
+    assert_ne!(&h[..OBS_DIM], &before[1][..OBS_DIM]);
+    // Older entries and the other envs' histories are untouched.
+    assert_eq!(&h[OBS_DIM..], &before[1][OBS_DIM..]);
+    assert_eq!(rollout.history().env(0), &before[0][..]);
+    assert_eq!(rollout.history().env(2), &before[2][..]);
+    // The very next action of env 1 comes from the biped policy.
+    rollout.step(&policies).expect("step");
+    assert_eq!(
+        (
+            quad.rows.load(Ordering::Relaxed),
+            biped.rows.load(Ordering::Relaxed)
+        ),
+        (17, 1)
+    );
+    let err = rollout
+        .set_modes(&[1, 0], Mode::Quad, None)
+        .expect_err("short mask");
+    assert!(matches!(err, EvalError::Sim(_)), "{err}");
 }
 
 /// Counts the rows each policy sees and answers with its own constant.

@@ -51,14 +51,40 @@ pub fn sample_command(ranges: &CommandRanges, zero_below: f32, rng: &mut ChaCha8
 }
 
 impl EnvState {
-    /// Draw a task mode.
-    pub fn sample_mode(&mut self, cfg: &TaskConfig) {
+    /// Draw a task mode from the env's stream without entering it.
+    pub fn draw_mode(&mut self, cfg: &TaskConfig) -> TaskMode {
         let biped = self.rng.random::<f32>() < cfg.modes.biped_probability;
-        self.mode = if biped {
+        if biped {
             TaskMode::Biped
         } else {
             TaskMode::Quad
-        };
+        }
+    }
+
+    /// Enter `mode` and settle the command that goes with it: the one place a mode change
+    /// happens, for the episode's own draws and for a caller's switch alike.
+    ///
+    /// `command` Some: that command from now on. None: a fresh draw from the new mode's ranges
+    /// when the mode changed (an old command may be out of the new mode's reach, e.g. 1.5 m/s in
+    /// biped mode) or when `redraw` asks for one (the command schedule is due), else the current
+    /// command stays. At most one command is drawn, so the env's random stream advances exactly
+    /// as it always has. The gait clock runs on the episode step and is left alone: a mode change
+    /// swaps the phase offsets it is read with, not the clock. Returns whether the mode changed.
+    pub fn enter_mode(
+        &mut self,
+        cfg: &TaskConfig,
+        mode: TaskMode,
+        command: Option<[f32; 3]>,
+        redraw: bool,
+    ) -> bool {
+        let changed = self.mode != mode;
+        self.mode = mode;
+        match command {
+            Some(c) => self.command = c,
+            None if changed || redraw => self.sample_command(cfg),
+            None => {}
+        }
+        changed
     }
 
     /// Draw commands for the current mode.

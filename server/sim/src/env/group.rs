@@ -2,6 +2,7 @@
 //! parallelism; its size comes from the config, never from the thread count, so results do not
 //! depend on the number of threads.
 
+use std::ops::Range;
 use std::time::Instant;
 
 use rand::{RngExt, SeedableRng};
@@ -11,9 +12,9 @@ use rapier3d::math::{Pose, Rotation, Vec3};
 use crate::physics::{ActuatorParams, RobotState, RobotWorld};
 use crate::robot::{NUM_FEET, NUM_JOINTS, RobotModel};
 use crate::task::{
-    self, LABEL_DIM, OBS_DIM, PRIVILEGED_DIM, Randomization, RewardInputs, RewardTerm, TaskContext,
-    TaskMode, euler_pitch, gait_coefficients, heading_direction, projected_gravity,
-    to_heading_frame, uniform,
+    self, LABEL_DIM, OBS_DIM, OBSERVATION, PRIVILEGED_DIM, Randomization, RewardInputs, RewardTerm,
+    TaskConfig, TaskContext, TaskMode, euler_pitch, gait_coefficients, heading_direction,
+    projected_gravity, to_heading_frame, uniform,
 };
 use crate::terrain::Terrain;
 
@@ -203,8 +204,8 @@ impl EnvGroup {
             .set_robot_state(model, slot, base, linvel, angvel, &q);
         env.origin = [x, y];
 
-        env.sample_mode(cfg);
-        env.sample_command(cfg);
+        let mode = env.draw_mode(cfg);
+        env.enter_mode(cfg, mode, None, true);
         env.episode_step = if first && cfg.env.random_initial_episode_step {
             env.rng.random_range(0..sh.ctx.max_episode_steps)
         } else {
@@ -231,6 +232,40 @@ impl EnvGroup {
             if m != 0 {
                 self.reset_env(sh, slot, false);
                 self.write_env(sh, slot, out);
+            }
+        }
+    }
+
+    /// Switch env `slot` to `mode` now, as the episode's own mode draw would (see
+    /// [`EnvState::enter_mode`]), and rewrite what of its row of `out` the mode decides: the
+    /// task slices of o_t and the mode entry. Nothing else of the row changes (the rest of o_t
+    /// measures the body, and the last reward was earned under the old mode).
+    pub fn set_mode(
+        &mut self,
+        sh: &Shared,
+        slot: usize,
+        mode: TaskMode,
+        command: Option<[f32; 3]>,
+        out: &mut OutputChunk,
+    ) {
+        let env = &mut self.envs[slot];
+        env.enter_mode(&sh.ctx.config, mode, command, false);
+        rewrite_task_observation(sh, env, &mut out.obs[slot * OBS_DIM..(slot + 1) * OBS_DIM]);
+        out.mode[slot] = env.mode as u8;
+    }
+
+    /// [`Self::set_mode`] on the envs whose `mask` entry is non-zero.
+    pub fn set_mode_masked(
+        &mut self,
+        sh: &Shared,
+        mask: &[u8],
+        mode: TaskMode,
+        command: Option<[f32; 3]>,
+        out: &mut OutputChunk,
+    ) {
+        for (slot, &m) in mask.iter().enumerate().take(self.envs.len()) {
+            if m != 0 {
+                self.set_mode(sh, slot, mode, command, out);
             }
         }
     }
@@ -361,15 +396,12 @@ impl EnvGroup {
             let env = &mut self.envs[slot];
             env.last_qd = self.states[slot].qd;
             let step = env.episode_step;
-            let mut resample_command = step.is_multiple_of(ctx.command_interval);
-            if step.is_multiple_of(ctx.mode_interval) {
-                let before = env.mode;
-                env.sample_mode(cfg);
-                resample_command |= env.mode != before;
-            }
-            if resample_command {
-                env.sample_command(cfg);
-            }
+            let mode = if step.is_multiple_of(ctx.mode_interval) {
+                env.draw_mode(cfg)
+            } else {
+                env.mode
+            };
+            env.enter_mode(cfg, mode, None, step.is_multiple_of(ctx.command_interval));
             if ctx.push_interval.is_some_and(|p| step.is_multiple_of(p)) {
                 let v = cfg.randomization.push_velocity;
                 let delta = Vec3::new(
@@ -436,22 +468,59 @@ fn reward_inputs(
     }
 }
 
+/// Where field `name` of o_t sits in a row. Evaluated at compile time for the constants below,
+/// so a renamed or missing field fails the build instead of writing to the wrong place.
+const fn obs_range(name: &str) -> Range<usize> {
+    let mut offset = 0;
+    let mut i = 0;
+    while i < OBSERVATION.len() {
+        let field = &OBSERVATION[i];
+        if same_name(field.name, name) {
+            return offset..offset + field.dim;
+        }
+        offset += field.dim;
+        i += 1;
+    }
+    panic!("no such observation field");
+}
+
+/// `a == b` for const evaluation (`PartialEq` is not callable in a const fn).
+const fn same_name(a: &str, b: &str) -> bool {
+    let (a, b) = (a.as_bytes(), b.as_bytes());
+    if a.len() != b.len() {
+        return false;
+    }
+    let mut i = 0;
+    while i < a.len() {
+        if a[i] != b[i] {
+            return false;
+        }
+        i += 1;
+    }
+    true
+}
+
+const OBS_CMD: Range<usize> = obs_range("cmd");
+const OBS_MODE: Range<usize> = obs_range("mode");
+const OBS_CLOCK: Range<usize> = obs_range("clock");
+const OBS_RATIO: Range<usize> = obs_range("ratio");
+/// The measured part of o_t: orientation through the last action, contiguous in the table.
+const OBS_BODY: Range<usize> = obs_range("phi").start..obs_range("last_action").end;
+/// The slices of o_t that follow the env's task rather than its body: all a mode switch
+/// rewrites.
+const OBS_TASK: [Range<usize>; 4] = [OBS_CMD, OBS_MODE, OBS_CLOCK, OBS_RATIO];
+
 /// Write o_t of one env (scaled, noised, clipped) into `row` (53 values).
 pub fn write_observation(sh: &Shared, env: &mut EnvState, s: &RobotState, row: &mut [f32]) {
     let ctx = sh.ctx;
-    let cfg = &ctx.config;
     let inv = s.base_rot.inverse();
     let g = projected_gravity(s.base_rot);
     let w = inv * s.base_angvel;
-    let phase = env.gait_phase(cfg);
-    let offsets = env.gait_offsets(cfg);
-    let biped = env.mode == TaskMode::Biped;
-    let mut i = 0;
+    let mut i = OBS_BODY.start;
     let mut push = |v: f32| {
         row[i] = v;
         i += 1;
     };
-    env.command.iter().for_each(|&c| push(c));
     push(g.y);
     push(euler_pitch(s.base_rot));
     push(g.z);
@@ -459,26 +528,51 @@ pub fn write_observation(sh: &Shared, env: &mut EnvState, s: &RobotState, row: &
     (0..NUM_JOINTS).for_each(|j| push(s.q[j] - ctx.default_q[j]));
     s.qd.iter().for_each(|&c| push(c));
     env.actions[0].iter().for_each(|&c| push(c));
-    push(f32::from(u8::from(biped)));
-    push(f32::from(u8::from(!biped)));
-    for (f, theta) in offsets.iter().enumerate() {
+    debug_assert_eq!(i, OBS_BODY.end);
+    write_task_values(&ctx.config, env, row);
+    finish_observation(ctx, env, row, 0..OBS_DIM);
+}
+
+/// Rewrite only the task slices of an already written o_t (after a mode switch): the body
+/// slices keep the reading (and noise draw) the policy has already been given.
+fn rewrite_task_observation(sh: &Shared, env: &mut EnvState, row: &mut [f32]) {
+    write_task_values(&sh.ctx.config, env, row);
+    for range in OBS_TASK {
+        // These slices carry no noise in the table, so this draws nothing from the env's
+        // stream; the values come out bit-identical to a full write of the same state.
+        finish_observation(sh.ctx, env, row, range);
+    }
+}
+
+/// The unscaled task slices of o_t: command, one-hot mode, gait clock, swing/stance ratio.
+fn write_task_values(cfg: &TaskConfig, env: &EnvState, row: &mut [f32]) {
+    let biped = env.mode == TaskMode::Biped;
+    let phase = env.gait_phase(cfg);
+    let offsets = env.gait_offsets(cfg);
+    row[OBS_CMD].copy_from_slice(&env.command);
+    row[OBS_MODE].copy_from_slice(&[f32::from(u8::from(biped)), f32::from(u8::from(!biped))]);
+    for (f, (value, theta)) in row[OBS_CLOCK].iter_mut().zip(offsets).enumerate() {
         let rear = f >= 2;
-        push(if biped && rear {
+        *value = if biped && rear {
             0.0
         } else {
             (std::f32::consts::TAU * (phase + theta)).sin()
-        });
+        };
     }
-    push(cfg.gait.swing_ratio);
-    push(1.0 - cfg.gait.swing_ratio);
-    debug_assert_eq!(i, OBS_DIM);
-    let clip = cfg.env.clip_observations;
-    for ((value, scale), noise) in row.iter_mut().zip(&ctx.obs_scale).zip(&ctx.obs_noise) {
-        let mut v = *value * scale;
-        if *noise > 0.0 {
+    row[OBS_RATIO].copy_from_slice(&[cfg.gait.swing_ratio, 1.0 - cfg.gait.swing_ratio]);
+}
+
+/// Scale, noise and clip `row[range]` in place (noise drawn in index order, where the table
+/// has any).
+fn finish_observation(ctx: &TaskContext, env: &mut EnvState, row: &mut [f32], range: Range<usize>) {
+    let clip = ctx.config.env.clip_observations;
+    for i in range {
+        let mut v = row[i] * ctx.obs_scale[i];
+        let noise = ctx.obs_noise[i];
+        if noise > 0.0 {
             v += noise * (2.0 * env.rng.random::<f32>() - 1.0);
         }
-        *value = v.clamp(-clip, clip);
+        row[i] = v.clamp(-clip, clip);
     }
 }
 

@@ -7,7 +7,7 @@ use rayon::prelude::*;
 use crate::error::SimError;
 use crate::physics::RobotState;
 use crate::robot::{NUM_JOINTS, RobotModel};
-use crate::task::{TaskConfig, TaskContext};
+use crate::task::{TaskConfig, TaskContext, TaskMode};
 use crate::terrain::Terrain;
 
 use super::group::{EnvGroup, Shared, StageTimes};
@@ -78,6 +78,21 @@ pub fn validate_actions(actions: &[f32], num_envs: usize) -> Result<(), SimError
             index,
             env: index / NUM_JOINTS,
             value: actions[index],
+        });
+    }
+    Ok(())
+}
+
+/// A caller's command must be finite (`env` names the env it is for, in the error).
+fn check_command(command: Option<[f32; 3]>, env: usize) -> Result<(), SimError> {
+    if let Some(c) = command
+        && let Some(index) = c.iter().position(|v| !v.is_finite())
+    {
+        return Err(SimError::NonFinite {
+            name: "command".into(),
+            index,
+            env,
+            value: c[index],
         });
     }
     Ok(())
@@ -212,6 +227,82 @@ impl VecEnv {
         Ok(&self.out)
     }
 
+    /// Switch env `env` to task mode `mode` now, as the episode's own mode draw does, so that
+    /// the next action the policy computes already sees the new mode.
+    ///
+    /// - `command` (vx, vy in the heading frame, yaw rate) becomes the env's command. With
+    ///   None the command is redrawn from the new mode's ranges when the mode changes (as a
+    ///   drawn mode change does) and kept when the env already is in `mode`.
+    /// - The gait clock runs on, as at a drawn mode change (its phase offsets follow the mode).
+    /// - Row `env` of the current output is rewritten where the mode decides it: the command,
+    ///   mode and clock slices of `obs` (ratio too, unchanged) and `mode`. The rest of the row,
+    ///   including the reward of the last step, stays as the last step left it.
+    /// - Later mode and command draws of the episode come on their usual schedule, and a reset
+    ///   draws the mode afresh.
+    ///
+    /// Only env `env` is touched, and only its own random stream may advance (by the command
+    /// draw), so other envs stay bit-identical and results do not depend on the thread count.
+    pub fn set_mode(
+        &mut self,
+        env: usize,
+        mode: TaskMode,
+        command: Option<[f32; 3]>,
+    ) -> Result<(), SimError> {
+        let n = self.options.num_envs;
+        if env >= n {
+            return Err(SimError::invalid(
+                "env",
+                env,
+                format!("an env index below num_envs = {n}"),
+            ));
+        }
+        check_command(command, env)?;
+        let epw = self.ctx.config.env.envs_per_world;
+        let sh = Shared {
+            model: &self.model,
+            ctx: &self.ctx,
+            terrain: &self.terrain,
+            num_envs: n,
+            physics_only: self.options.physics_only,
+        };
+        // Groups and output chunks pair up one to one (both are `epw` envs each).
+        let (group, slot) = (env / epw, env % epw);
+        if let (Some(g), Some(chunk)) = (
+            self.groups.get_mut(group),
+            self.out.chunks_mut(epw).get_mut(group),
+        ) {
+            g.set_mode(&sh, slot, mode, command, chunk);
+        }
+        Ok(())
+    }
+
+    /// [`Self::set_mode`] on every env whose `mask` entry is non-zero (`mask` has one entry per
+    /// env), all to the same mode and, when given, the same command.
+    pub fn set_modes(
+        &mut self,
+        mask: &[u8],
+        mode: TaskMode,
+        command: Option<[f32; 3]>,
+    ) -> Result<(), SimError> {
+        let n = self.options.num_envs;
+        if mask.len() != n {
+            return Err(SimError::Shape {
+                name: "mode_mask".into(),
+                got: mask.len(),
+                expected: n,
+                detail: format!("{n} envs"),
+            });
+        }
+        // A bad command is refused even when the mask is empty: it is the caller's bug either way.
+        let first = mask.iter().position(|&m| m != 0).unwrap_or(0);
+        check_command(command, first)?;
+        let epw = self.ctx.config.env.envs_per_world;
+        self.for_each_group(|sh, g, chunk, first| {
+            g.set_mode_masked(sh, &mask[first..(first + epw).min(n)], mode, command, chunk)
+        });
+        Ok(())
+    }
+
     /// The latest results.
     pub fn output(&self) -> &StepOutput {
         &self.out
@@ -249,6 +340,17 @@ impl VecEnv {
             .flat_map(|g| g.states())
             .map(|s| s.max_joint_gap)
             .fold(0.0, f32::max)
+    }
+
+    /// Share of envs given extra solver iterations after the last step (a cost driver: see
+    /// [`crate::physics::PhysicsParams::extra_pgs_iterations_on_leg_contact`]).
+    pub fn extra_iteration_share(&self) -> f64 {
+        let (mut extra, mut total) = (0usize, 0usize);
+        for s in self.groups.iter().flat_map(|g| g.states()) {
+            extra += usize::from(s.extra_iterations);
+            total += 1;
+        }
+        extra as f64 / total.max(1) as f64
     }
 
     /// Measured state of env `i` after the last step.
