@@ -19,21 +19,22 @@ use super::robot_state::RobotState;
 pub struct PhysicsParams {
     /// Physics time step (s). Default 0.005 (200 Hz).
     pub dt: f32,
-    /// Rapier solver iterations per step, i.e. substeps of the soft-TGS solver. Default 1, as
-    /// legged_gym's PhysX setting (one substep, 4 position iterations): substeps re-linearise
-    /// every joint and contact, PGS iterations within a substep are much cheaper.
+    /// Rapier solver iterations per step, i.e. substeps of its soft-TGS solver. Default 2:
+    /// substeps re-linearise every joint and contact, PGS iterations within a substep are much
+    /// cheaper; with one substep a dropped robot's trunk touches the ground on landing.
     pub solver_iterations: usize,
-    /// Rapier internal PGS iterations per substep. Default 8: with one substep the worst joint
-    /// anchor gap under random actions stays near 3 mm (README, design notes).
+    /// Rapier internal PGS iterations per substep. Default 3: the worst joint anchor gap under
+    /// random actions stays near 3 mm (README, design notes).
     pub pgs_iterations: usize,
     /// Gravity along -z (m/s^2). Default 9.81.
     pub gravity: f32,
     /// Extra substeps for a robot whose hips, thighs or calves touch the terrain or whose joints
     /// near their stops (a fallen or sprawled robot). Default 0: extra PGS iterations are cheaper.
     pub extra_iterations_on_leg_contact: usize,
-    /// Extra PGS iterations per substep for the same robots. Default 8: contacts on the light leg
+    /// Extra PGS iterations per substep for the same robots. Default 6: contacts on the light leg
     /// links need them to keep joint anchors within 5 mm (without them a robot lying on its legs
-    /// drifts up to 12 mm); about 16% of robots need them under random actions.
+    /// drifts up to 12 mm, with 4 up to 6 mm); about 15% of robots need them under random
+    /// actions, 68% when fallen robots are never reset.
     pub extra_pgs_iterations_on_leg_contact: usize,
     /// Floor on each diagonal entry of a leg link's inertia tensor (kg m^2). Default 0.002.
     /// The Go2's hips and calves are very light about the axes they do not turn on (down to
@@ -52,7 +53,7 @@ impl Default for PhysicsParams {
             pgs_iterations: 3,
             gravity: 9.81,
             extra_iterations_on_leg_contact: 0,
-            extra_pgs_iterations_on_leg_contact: 4,
+            extra_pgs_iterations_on_leg_contact: 6,
             min_link_inertia: 0.002,
         }
     }
