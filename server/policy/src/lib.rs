@@ -3,11 +3,13 @@
 //! A policy maps the observation history `[batch, 3, 53]` (o_t, o_{t-1}, o_{t-2}, f32,
 //! row-major) to actions `[batch, 12]`. [`OnnxPolicy`] loads an exported graph (bytes or a
 //! path), checks its input and output against a [`PolicySpec`], makes the batch dimension
-//! symbolic (an exporter such as rsl_rl's may fix it at 1) and runs the optimised model batched.
+//! symbolic (an exporter such as rsl_rl's may fix it at 1) and runs it batched, through plans
+//! optimised for each row count met (built on first use, cached; large batches go in chunks).
 //! [`ObsHistory`] keeps the per-env history the policy reads; [`Policy`] is the interface the
 //! evaluation runs, so scripted test policies ([`ConstantPolicy`]) fit in as well.
 #![warn(missing_docs)]
 
+mod elu;
 mod error;
 mod history;
 mod onnx;

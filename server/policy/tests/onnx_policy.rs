@@ -1,8 +1,10 @@
 //! The ONNX loader against the committed test policies of `tests/data/` (written by
 //! `tests/data/make_test_policy.py`): outputs match the independent numpy forward pass within
-//! 1e-5 at batch 1 and 1024, a fixed-batch export runs at any batch, and malformed or
-//! mismatched graphs are refused with a clear error.
+//! 1e-5 at batch 1 and 1024, the per-batch-size plans (and chunking) agree with it at any batch
+//! and in any order, a fixed-batch export runs at any batch, and malformed or mismatched graphs
+//! are refused with a clear error.
 
+use std::collections::HashMap;
 use std::path::PathBuf;
 
 use unigait_policy::{OnnxPolicy, Policy, PolicyError, PolicySpec};
@@ -28,6 +30,15 @@ fn expected() -> Vec<f32> {
     bytes
         .chunks_exact(4)
         .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect()
+}
+
+/// The reference actions for `inputs(batch)`, any batch: the inputs repeat every 101 rows
+/// (`b * 53 mod 101`), so row `b` is reference row `b % 101`.
+fn expected_rows(expected: &[f32], batch: usize) -> Vec<f32> {
+    (0..batch)
+        .flat_map(|b| &expected[(b % 101) * 12..(b % 101 + 1) * 12])
+        .copied()
         .collect()
 }
 
@@ -61,13 +72,97 @@ fn matches_numpy_reference_at_batch_1_and_1024() {
 }
 
 #[test]
+fn per_batch_plans_match_the_reference_at_any_batch_in_any_order() {
+    let policy = OnnxPolicy::from_path(data("test_policy.onnx"), PolicySpec::default()).unwrap();
+    let expected = expected();
+    let chunk = OnnxPolicy::CHUNK_ROWS;
+    assert!(
+        policy.cached_plan_sizes().is_empty(),
+        "plans are built on first use"
+    );
+    // Small batches, whole chunks, chunks plus a remainder, and sizes coming back after others.
+    let batches = [
+        1,
+        7,
+        1024,
+        4096,
+        7,
+        1,
+        chunk + 1,
+        chunk - 1,
+        chunk,
+        4096,
+        3 * chunk + 44,
+        1024,
+    ];
+    let mut first: HashMap<usize, Vec<f32>> = HashMap::new();
+    for batch in batches {
+        let out = policy.act_vec(&inputs(batch), batch).expect("runs");
+        let err = max_abs_diff(&out, &expected_rows(&expected, batch));
+        assert!(err < 1e-5, "batch {batch}: max abs diff {err}");
+        match first.get(&batch) {
+            // The cached plan again: the very same values.
+            Some(before) => assert_eq!(before, &out, "batch {batch} changed on a later call"),
+            None => {
+                first.insert(batch, out);
+            }
+        }
+    }
+    // A row's actions do not depend on the batch size (plan) it was computed with.
+    let whole = &first[&4096];
+    for (batch, out) in &first {
+        let err = max_abs_diff(out, &whole[..out.len()]);
+        assert!(err < 1e-5, "batch {batch} vs 4096: max abs diff {err}");
+    }
+    // One plan per row count run: the small batches, the chunk, and the remainders.
+    let mut sizes = vec![1, 7, chunk, chunk - 1, 44];
+    sizes.sort_unstable();
+    assert_eq!(policy.cached_plan_sizes(), sizes);
+}
+
+#[test]
+fn concurrent_callers_at_different_batches_get_the_reference() {
+    let policy = OnnxPolicy::from_path(data("test_policy.onnx"), PolicySpec::default()).unwrap();
+    let expected = expected();
+    std::thread::scope(|scope| {
+        for batch in [1, 7, 300, 1024, 4096, 7, 300] {
+            let (policy, expected) = (&policy, &expected);
+            scope.spawn(move || {
+                for _ in 0..3 {
+                    let out = policy.act_vec(&inputs(batch), batch).expect("runs");
+                    let err = max_abs_diff(&out, &expected_rows(expected, batch));
+                    assert!(err < 1e-5, "batch {batch}: max abs diff {err}");
+                }
+            });
+        }
+    });
+}
+
+#[test]
+fn plan_cache_is_bounded_and_extra_sizes_still_run() {
+    let policy = OnnxPolicy::from_path(data("test_policy.onnx"), PolicySpec::default()).unwrap();
+    let expected = expected();
+    let max = OnnxPolicy::MAX_CACHED_PLANS;
+    for batch in 1..=max + 4 {
+        let out = policy.act_vec(&inputs(batch), batch).expect("runs");
+        let err = max_abs_diff(&out, &expected_rows(&expected, batch));
+        assert!(err < 1e-5, "batch {batch}: max abs diff {err}");
+    }
+    assert_eq!(
+        policy.cached_plan_sizes(),
+        (1..=max).collect::<Vec<_>>(),
+        "the first sizes are kept, the later ones run on the symbolic plan"
+    );
+}
+
+#[test]
 fn fixed_batch_export_runs_at_any_batch() {
     let bytes = std::fs::read(data("test_policy_fixed_batch.onnx")).expect("file");
     let policy = OnnxPolicy::from_bytes(&bytes, PolicySpec::default()).expect("loads");
     let expected = expected();
-    for batch in [1, 7, 1024] {
+    for batch in [1, 7, 1024, 4096] {
         let out = policy.act_vec(&inputs(batch), batch).expect("runs");
-        let err = max_abs_diff(&out, &expected[..batch * 12]);
+        let err = max_abs_diff(&out, &expected_rows(&expected, batch));
         assert!(err < 1e-5, "batch {batch}: max abs diff {err}");
     }
 }
