@@ -4,13 +4,18 @@
 //! scenario list: the Table VI columns `stairs_up_quad` ... `stairs_down_biped`, `table_vi`,
 //! `transition_biped_to_quad`, `transition_quad_to_biped`, `tracking_quad`, `tracking_biped`,
 //! `flat_quad`, `flat_biped`) and answers with metrics, a JSON report and, for `record`, a
-//! rerun recording of env 0.
+//! rerun recording of env 0: written to a file (`--out`), sent to a running viewer
+//! (`--connect`), or served from this process for a viewer to join (`--serve`, until Ctrl-C or
+//! `--serve-for`).
 
 use std::collections::HashMap;
+use std::net::{Ipv4Addr, SocketAddr};
 use std::path::{Path, PathBuf};
+use std::time::Duration;
 
 use anyhow::{Context, Result};
 use unigait_proto::v1;
+use unigait_record::{DEFAULT_SERVE_PORT, MemoryLimit, ServeOptions, Served};
 
 use crate::Client;
 
@@ -46,15 +51,126 @@ pub struct EvalArgs {
     pub json: bool,
 }
 
-/// `unigait record`: evaluate a policy and save a rerun recording of env 0.
+/// A viewer's gRPC proxy, where `rerun` listens by default.
+pub const DEFAULT_VIEWER_URL: &str = "rerun+http://127.0.0.1:9876/proxy";
+
+/// How long `--connect` waits for the viewer to take the recording.
+const CONNECT_TIMEOUT: Duration = Duration::from_secs(30);
+
+/// `unigait record`: evaluate a policy and save, send or serve a rerun recording of env 0.
 #[derive(Clone, Debug, clap::Args)]
+#[command(group(
+    clap::ArgGroup::new("output")
+        .required(true)
+        .args(["out", "connect", "serve"])
+))]
 pub struct RecordArgs {
     /// What to evaluate.
     #[command(flatten)]
     pub rollout: RolloutArgs,
-    /// Where to write the recording (open it with `rerun rollout.rrd`).
-    #[arg(long)]
-    pub out: PathBuf,
+    /// Write the recording to this file (open it with `rerun rollout.rrd`).
+    #[arg(long, value_name = "FILE")]
+    pub out: Option<PathBuf>,
+    /// Send the recording to a running viewer (start one with `rerun`; bare --connect: its
+    /// default rerun+http://127.0.0.1:9876/proxy).
+    #[arg(long, value_name = "URL", num_args = 0..=1, default_missing_value = DEFAULT_VIEWER_URL)]
+    pub connect: Option<String>,
+    /// Serve the recording from this process for a viewer to join with
+    /// `rerun --connect rerun+http://HOST:PORT/proxy` (the URL is printed). Bare --serve:
+    /// 127.0.0.1:9876; a bare PORT listens on loopback; port 0 takes a free port. The proxy has
+    /// no authentication: bind beyond loopback (0.0.0.0:PORT) only on a trusted network.
+    #[arg(
+        long,
+        value_name = "ADDR:PORT",
+        num_args = 0..=1,
+        default_missing_value = "127.0.0.1:9876",
+        value_parser = parse_serve_addr
+    )]
+    pub serve: Option<SocketAddr>,
+    /// With --serve: stop serving after this many seconds (default: until Ctrl-C).
+    // `requires` alone lets `--out F --serve-for 3` through: clap deems a requirement that
+    // conflicts with a present flag met. Hence the explicit conflicts.
+    #[arg(
+        long,
+        value_name = "SECONDS",
+        requires = "serve",
+        conflicts_with_all = ["out", "connect"],
+        value_parser = parse_seconds
+    )]
+    pub serve_for: Option<Duration>,
+    /// With --serve: cap on the data buffered for viewers (e.g. 256MB, 2GB, 10%; default
+    /// 1GiB); past it the oldest data is dropped, so a viewer would miss the rollout's start.
+    #[arg(
+        long,
+        value_name = "LIMIT",
+        requires = "serve",
+        conflicts_with_all = ["out", "connect"],
+        value_parser = parse_memory_limit
+    )]
+    pub serve_memory_limit: Option<MemoryLimit>,
+}
+
+/// Where `unigait record` puts the recording.
+#[derive(Clone, Debug, PartialEq)]
+pub enum RecordOutput {
+    /// An `.rrd` file.
+    File(PathBuf),
+    /// A running viewer's gRPC proxy URL.
+    Connect(String),
+    /// Served from this process, for `until` (None: until Ctrl-C).
+    Serve {
+        /// Address and memory limit.
+        options: ServeOptions,
+        /// How long to serve.
+        until: Option<Duration>,
+    },
+}
+
+impl RecordArgs {
+    /// The output the flags ask for (clap makes exactly one of them present).
+    pub fn output(&self) -> Result<RecordOutput> {
+        if let Some(out) = &self.out {
+            return Ok(RecordOutput::File(out.clone()));
+        }
+        if let Some(url) = &self.connect {
+            return Ok(RecordOutput::Connect(url.clone()));
+        }
+        if let Some(addr) = self.serve {
+            let mut options = ServeOptions {
+                addr,
+                ..ServeOptions::default()
+            };
+            if let Some(limit) = self.serve_memory_limit {
+                options.memory_limit = limit;
+            }
+            return Ok(RecordOutput::Serve {
+                options,
+                until: self.serve_for,
+            });
+        }
+        anyhow::bail!("give one of --out, --connect, --serve")
+    }
+}
+
+/// `ADDR:PORT`, or a bare `PORT` on loopback (serving beyond loopback must be asked for).
+fn parse_serve_addr(s: &str) -> Result<SocketAddr, String> {
+    if let Ok(port) = s.parse::<u16>() {
+        return Ok(SocketAddr::from((Ipv4Addr::LOCALHOST, port)));
+    }
+    s.parse().map_err(|_| {
+        format!("expected ADDR:PORT (e.g. 127.0.0.1:{DEFAULT_SERVE_PORT}) or a port, got `{s}`")
+    })
+}
+
+fn parse_seconds(s: &str) -> Result<Duration, String> {
+    let secs: f64 = s
+        .parse()
+        .map_err(|_| format!("expected seconds, got `{s}`"))?;
+    Duration::try_from_secs_f64(secs).map_err(|_| format!("expected seconds >= 0, got `{s}`"))
+}
+
+fn parse_memory_limit(s: &str) -> Result<MemoryLimit, String> {
+    MemoryLimit::parse(s)
 }
 
 fn read_policy(path: &Path) -> Result<Vec<u8>> {
@@ -109,8 +225,13 @@ pub async fn run_eval(client: &mut Client, args: &EvalArgs) -> Result<()> {
     Ok(())
 }
 
-/// `unigait record`: write the recording to `--out` and print the metrics table.
+/// `unigait record`: print the metrics table and write, send or serve the recording.
 pub async fn run_record(client: &mut Client, args: &RecordArgs) -> Result<()> {
+    // Flags and the serve address first: neither must cost a rollout.
+    let output = args.output()?;
+    if let RecordOutput::Serve { options, .. } = &output {
+        options.check()?;
+    }
     let reply = client
         .evaluate(request(&args.rollout, true)?)
         .await
@@ -118,21 +239,131 @@ pub async fn run_record(client: &mut Client, args: &RecordArgs) -> Result<()> {
     if reply.recording_rrd.is_empty() {
         anyhow::bail!("the server sent no recording");
     }
-    std::fs::write(&args.out, &reply.recording_rrd)
-        .with_context(|| format!("cannot write `{}`", args.out.display()))?;
-    print!("{}", format_table(&reply.metrics));
-    eprintln!(
-        "wrote {} ({} bytes): open it with `rerun {}`",
-        args.out.display(),
-        reply.recording_rrd.len(),
-        args.out.display()
-    );
+    let rrd = reply.recording_rrd;
+    let table = format_table(&reply.metrics);
+    match output {
+        RecordOutput::File(out) => {
+            std::fs::write(&out, &rrd)
+                .with_context(|| format!("cannot write `{}`", out.display()))?;
+            print!("{table}");
+            eprintln!(
+                "wrote {} ({} bytes): open it with `rerun {}`",
+                out.display(),
+                rrd.len(),
+                out.display()
+            );
+        }
+        RecordOutput::Connect(url) => {
+            print!("{table}");
+            let to = url.clone();
+            // rerun's sinks block until the viewer has the data: off the async workers.
+            tokio::task::spawn_blocking(move || {
+                unigait_record::send_rrd(&rrd, &to, CONNECT_TIMEOUT)
+            })
+            .await??;
+            eprintln!("sent the recording to the viewer at {url}");
+        }
+        RecordOutput::Serve { options, until } => {
+            let served = tokio::task::spawn_blocking(move || Served::rrd(&rrd, &options)).await??;
+            print!("{table}");
+            let url = served.url();
+            let how_long = match until {
+                Some(d) => format!("for {} s or until Ctrl-C", d.as_secs_f64()),
+                None => "until Ctrl-C".into(),
+            };
+            eprintln!(
+                "serving the recording on {} {how_long}: join with `rerun --connect {url}`",
+                served.addr()
+            );
+            let stopped = match until {
+                Some(d) => tokio::select! {
+                    r = tokio::signal::ctrl_c() => r,
+                    () = tokio::time::sleep(d) => Ok(()),
+                },
+                None => tokio::signal::ctrl_c().await,
+            };
+            // Stop serving even if Ctrl-C could not be watched, then report that.
+            tokio::task::spawn_blocking(move || served.shutdown()).await??;
+            stopped.context("cannot watch for Ctrl-C")?;
+            eprintln!("stopped serving");
+        }
+    }
     Ok(())
 }
 
 #[cfg(test)]
 mod test {
     use super::*;
+    use clap::Parser;
+
+    #[derive(Debug, Parser)]
+    struct Cli {
+        #[command(flatten)]
+        record: RecordArgs,
+    }
+
+    fn parse(flags: &[&str]) -> Result<RecordOutput> {
+        let argv = ["unigait", "--policy", "p.onnx", "--scenario", "flat_quad"];
+        let cli = Cli::try_parse_from(argv.iter().chain(flags))?;
+        cli.record.output()
+    }
+
+    fn serve(addr: &str, until: Option<Duration>, memory_limit: MemoryLimit) -> RecordOutput {
+        RecordOutput::Serve {
+            options: ServeOptions {
+                addr: addr.parse().expect("an address"),
+                memory_limit,
+            },
+            until,
+        }
+    }
+
+    #[test]
+    fn record_outputs_from_flags() {
+        let default_limit = ServeOptions::default().memory_limit;
+        assert_eq!(
+            parse(&["--out", "r.rrd"]).unwrap(),
+            RecordOutput::File("r.rrd".into())
+        );
+        assert_eq!(
+            parse(&["--connect"]).unwrap(),
+            RecordOutput::Connect(DEFAULT_VIEWER_URL.into())
+        );
+        assert_eq!(
+            parse(&["--serve"]).unwrap(),
+            serve("127.0.0.1:9876", None, default_limit)
+        );
+        assert_eq!(
+            parse(&["--serve", "9000", "--serve-for", "2.5"]).unwrap(),
+            serve(
+                "127.0.0.1:9000",
+                Some(Duration::from_millis(2500)),
+                default_limit
+            )
+        );
+        assert_eq!(
+            parse(&["--serve", "0.0.0.0:9000", "--serve-memory-limit", "256MB"]).unwrap(),
+            serve("0.0.0.0:9000", None, MemoryLimit::from_bytes(256_000_000))
+        );
+    }
+
+    #[test]
+    fn record_output_flags_are_checked() {
+        for bad in [
+            &[][..],
+            &["--out", "r.rrd", "--serve"],
+            &["--connect", "--serve"],
+            &["--out", "r.rrd", "--serve-for", "3"],
+            &["--connect", "--serve-memory-limit", "1GB"],
+            &["--serve-for", "3"],
+            &["--serve", "localhost:9000"],
+            &["--serve", "--serve-for", "-1"],
+            &["--serve", "--serve-for", "soon"],
+            &["--serve", "--serve-memory-limit", "lots"],
+        ] {
+            assert!(parse(bad).is_err(), "{bad:?} accepted");
+        }
+    }
 
     #[test]
     fn table_is_sorted_and_aligned() {

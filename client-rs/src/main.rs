@@ -43,7 +43,7 @@ enum Command {
     Check,
     /// Evaluate an ONNX policy on one of the paper's scenarios (server-side rollouts).
     Eval(unigait_client::eval::EvalArgs),
-    /// Evaluate a policy and save a rerun recording of the rollout.
+    /// Evaluate a policy and write, send or serve a rerun recording of the rollout.
     Record(unigait_client::eval::RecordArgs),
 }
 

@@ -11,6 +11,20 @@ pub enum RecordError {
     /// The recording could not be flushed or encoded.
     #[error("cannot finish the rerun recording: {0}")]
     Finish(String),
+    /// The recording could not be served (address in use, server not listening, ...).
+    #[error("cannot serve the rerun recording on {addr}: {reason}")]
+    Serve {
+        /// The address asked for.
+        addr: String,
+        /// What went wrong.
+        reason: String,
+    },
+    /// `finish_serving` on a recorder that does not serve.
+    #[error("this recording is not served (make it with Recorder::serve)")]
+    NotServed,
+    /// Bytes that are not a valid `.rrd` recording.
+    #[error("not a valid rerun recording: {0}")]
+    InvalidRrd(String),
     /// The env index is not in the batch.
     #[error("env {index} is not in the batch of {num_envs}")]
     EnvIndex {

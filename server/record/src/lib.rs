@@ -8,9 +8,13 @@
 //! total reward, the command, the task mode, the base height and pitch, the foot contacts.
 //! Two timelines: `step` (policy steps) and `sim_time` (seconds).
 //!
-//! Output: in memory (the `.rrd` bytes, e.g. for a gRPC reply), an `.rrd` file, or a live
-//! stream to a viewer's gRPC proxy (`rerun+http://127.0.0.1:9876/proxy`). Only rerun's `sdk`
-//! feature is used; serving a viewer from here would need its heavier `server` feature.
+//! Output: in memory (the `.rrd` bytes, e.g. for a gRPC reply), an `.rrd` file, a live stream
+//! to a viewer's gRPC proxy ([`Recorder::connect`], `rerun+http://127.0.0.1:9876/proxy`), or
+//! served from this process for a viewer to join later ([`Recorder::serve`]; [`Served::rrd`]
+//! for a finished `.rrd`): rerun's gRPC server runs here (loopback by default) and buffers the
+//! recording up to a memory limit, and `rerun --connect rerun+http://HOST:PORT/proxy` joins it.
+//! rerun's `sdk` feature plus its `server` feature (the proxy server: axum, tonic-web,
+//! tower-http, re_grpc_server) are used.
 //! rerun uses glam 0.30 and rapier glam 0.33: everything crosses as plain arrays.
 //!
 //! Entity layout: `world/robot/<body>` (pose per step) with `world/robot/<body>/geom<k>`
@@ -21,8 +25,13 @@
 
 mod error;
 mod recorder;
+mod serve;
 mod terrain_mesh;
 
 pub use error::RecordError;
 pub use recorder::{APPLICATION_ID, RecordOptions, Recorder, entity};
+pub use rerun::MemoryLimit;
+pub use serve::{
+    DEFAULT_MEMORY_LIMIT_BYTES, DEFAULT_SERVE_PORT, ServeOptions, Served, proxy_url, send_rrd,
+};
 pub use terrain_mesh::{TerrainMesh, terrain_mesh};

@@ -11,6 +11,7 @@ use unigait_sim::robot::{ColliderRole, NUM_FEET, Shape};
 use unigait_sim::task::{RewardTerm, euler_pitch, heading_direction};
 
 use crate::error::RecordError;
+use crate::serve::{ServeOptions, Served, proxy_url, serve_stream};
 use crate::terrain_mesh::terrain_mesh;
 
 /// The rerun application id of unigait recordings.
@@ -76,6 +77,8 @@ impl Default for RecordOptions {
 pub struct Recorder {
     rec: RecordingStream,
     memory: Option<rerun::sink::MemorySinkStorage>,
+    /// Where the stream's own gRPC server listens, for a served recording.
+    served: Option<std::net::SocketAddr>,
     options: RecordOptions,
     last_mode: Option<u8>,
     steps: u64,
@@ -86,6 +89,7 @@ impl std::fmt::Debug for Recorder {
         f.debug_struct("Recorder")
             .field("options", &self.options)
             .field("in_memory", &self.memory.is_some())
+            .field("served", &self.served)
             .field("steps", &self.steps)
             .finish_non_exhaustive()
     }
@@ -144,6 +148,18 @@ impl Recorder {
         Ok(Self::new(rec, None, options))
     }
 
+    /// Serve from this process for a viewer to join, live or later: rerun's gRPC server runs
+    /// here and buffers the recording (up to `serve.memory_limit`), and `rerun --connect
+    /// <url>` (see [`Recorder::serve_url`]) joins it. Returns once the server listens. Keep
+    /// serving after the rollout with [`Recorder::finish_serving`]; [`Recorder::finish`]
+    /// stops the server.
+    pub fn serve(serve: &ServeOptions, options: RecordOptions) -> Result<Self, RecordError> {
+        let (rec, addr) = serve_stream(Self::builder(&options), serve)?;
+        let mut recorder = Self::new(rec, None, options);
+        recorder.served = Some(addr);
+        Ok(recorder)
+    }
+
     /// Record into a stream the caller built.
     pub fn with_stream(rec: RecordingStream, options: RecordOptions) -> Self {
         Self::new(rec, None, options)
@@ -157,6 +173,7 @@ impl Recorder {
         Self {
             rec,
             memory,
+            served: None,
             options,
             last_mode: None,
             steps: 0,
@@ -166,6 +183,11 @@ impl Recorder {
     /// The underlying stream (to log more).
     pub fn stream(&self) -> &RecordingStream {
         &self.rec
+    }
+
+    /// For a served recording, the URL a viewer joins (`rerun+http://HOST:PORT/proxy`).
+    pub fn serve_url(&self) -> Option<String> {
+        self.served.map(proxy_url)
     }
 
     /// Steps logged.
@@ -362,7 +384,19 @@ impl Recorder {
         Ok(())
     }
 
-    /// Flush and close; for an in-memory recording, the `.rrd` bytes.
+    /// Flush and keep serving: the returned handle owns the server, which runs until
+    /// [`Served::shutdown`] or drop. An error if the recorder was not made by
+    /// [`Recorder::serve`].
+    pub fn finish_serving(self) -> Result<Served, RecordError> {
+        let Some(addr) = self.served else {
+            return Err(RecordError::NotServed);
+        };
+        self.rec.flush_blocking().map_err(log_err)?;
+        Ok(Served::from_stream(self.rec, addr))
+    }
+
+    /// Flush and close (a served recording stops its server: see [`Recorder::finish_serving`]);
+    /// for an in-memory recording, the `.rrd` bytes.
     pub fn finish(self) -> Result<Option<Vec<u8>>, RecordError> {
         let bytes = match &self.memory {
             Some(storage) => Some(storage.drain_as_bytes().map_err(log_err)?),

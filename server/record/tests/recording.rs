@@ -1,19 +1,27 @@
 //! Headless check of a recording: write a short rollout to an `.rrd` file (and to memory),
 //! decode it back with rerun's own decoder, and find the robot's entities, one pose per step on
-//! the `step` timeline, and every reward series.
+//! the `step` timeline, and every reward series. Served recordings are read back the way a
+//! viewer joining late reads them: rerun's viewer-side gRPC client (`re_grpc_client::stream`)
+//! on the served proxy URL, after the whole rollout was logged.
 
 use std::collections::{BTreeMap, BTreeSet};
+use std::net::{Ipv4Addr, SocketAddr, TcpListener, TcpStream};
 use std::sync::Arc;
+use std::time::{Duration, Instant};
 
+use re_log_channel::{DataSourceMessage, RecvTimeoutError, SmartMessagePayload};
 use rerun::TimelineName;
+use rerun::external::re_grpc_client;
 use rerun::log::{Chunk, LogMsg};
-use unigait_record::{RecordOptions, Recorder, entity};
+use unigait_record::{RecordError, RecordOptions, Recorder, ServeOptions, Served, entity};
 use unigait_sim::env::{VecEnv, VecEnvOptions};
 use unigait_sim::robot::RobotModel;
 use unigait_sim::task::{RewardTerm, TaskConfig};
 use unigait_sim::terrain::{Terrain, TerrainKind, TerrainSpec, TerrainType};
 
 const STEPS: u64 = 25;
+/// End marker of a served test recording.
+const END: &str = "test/end";
 
 /// Per entity: rows logged on the `step` timeline (with their distinct step values) and
 /// whether it has static data.
@@ -24,17 +32,32 @@ struct EntityRows {
     is_static: bool,
 }
 
-fn decode(bytes: &[u8]) -> BTreeMap<String, EntityRows> {
-    let mut entities: BTreeMap<String, EntityRows> = BTreeMap::new();
-    let step = TimelineName::from_static_str("step");
-    for msg in re_log_encoding::DecoderApp::decode_lazy(bytes) {
-        let msg = msg.expect("a valid rrd message");
+/// Rows per entity of a stream of messages.
+#[derive(Debug, Default)]
+struct Tally {
+    entities: BTreeMap<String, EntityRows>,
+    /// Recording ids seen (a replay must not add a recording of its own).
+    store_ids: BTreeSet<String>,
+    /// Messages seen.
+    msgs: usize,
+}
+
+impl Tally {
+    fn add(&mut self, msg: &LogMsg) {
+        self.msgs += 1;
+        self.store_ids.insert(format!("{:?}", msg.store_id()));
         let LogMsg::ArrowMsg(_, arrow) = msg else {
-            continue;
+            return;
         };
-        let chunk = Chunk::from_arrow_msg(&arrow).expect("a valid chunk");
-        let e = entities.entry(chunk.entity_path().to_string()).or_default();
-        match chunk.timelines().get(&step) {
+        let chunk = Chunk::from_arrow_msg(arrow).expect("a valid chunk");
+        let e = self
+            .entities
+            .entry(chunk.entity_path().to_string())
+            .or_default();
+        match chunk
+            .timelines()
+            .get(&TimelineName::from_static_str("step"))
+        {
             Some(column) => {
                 e.rows += chunk.num_rows();
                 e.steps.extend(column.times_raw().iter().copied());
@@ -42,7 +65,74 @@ fn decode(bytes: &[u8]) -> BTreeMap<String, EntityRows> {
             None => e.is_static = true,
         }
     }
-    entities
+}
+
+fn decode_all(bytes: &[u8]) -> Tally {
+    let mut tally = Tally::default();
+    for msg in re_log_encoding::DecoderApp::decode_lazy(bytes) {
+        tally.add(&msg.expect("a valid rrd message"));
+    }
+    tally
+}
+
+fn decode(bytes: &[u8]) -> BTreeMap<String, EntityRows> {
+    decode_all(bytes).entities
+}
+
+/// Join `url` as a viewer does (rerun's viewer-side gRPC client on its own runtime) and read
+/// until `done`. The stream is live and never ends by itself; the deadline only turns a hang
+/// into a failure.
+fn join_as_viewer(url: &str, done: impl Fn(&Tally) -> bool) -> Tally {
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .enable_all()
+        .build()
+        .expect("runtime");
+    let handle = re_async::AsyncRuntimeHandle::new_native(rt.handle().clone());
+    let rx = re_grpc_client::stream(&handle, url.parse().expect("a proxy URL"));
+    let mut tally = Tally::default();
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while !done(&tally) {
+        assert!(
+            Instant::now() < deadline,
+            "incomplete after {} messages: {:#?}",
+            tally.msgs,
+            rollout_gaps(&tally.entities)
+        );
+        match rx.recv_timeout(Duration::from_millis(500)) {
+            Ok(msg) => match msg.payload {
+                SmartMessagePayload::Msg(DataSourceMessage::LogMsg(msg)) => tally.add(&msg),
+                SmartMessagePayload::Quit(err) => panic!("the server closed the stream: {err:?}"),
+                _ => {}
+            },
+            Err(RecvTimeoutError::Timeout) => {}
+            Err(e) => panic!("the stream broke: {e:?}"),
+        }
+    }
+    // Close the viewer's connection before the server stops.
+    drop(rx);
+    rt.shutdown_background();
+    tally
+}
+
+/// After a shutdown, the port stops accepting connections (the server thread winds down on
+/// its own, so poll; the deadline only turns a hang into a failure).
+fn assert_stops_listening(addr: SocketAddr) {
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while TcpStream::connect_timeout(&addr, Duration::from_millis(200)).is_ok() {
+        assert!(
+            Instant::now() < deadline,
+            "{addr} still accepts connections"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+fn loopback_any_port() -> ServeOptions {
+    ServeOptions {
+        addr: SocketAddr::from((Ipv4Addr::LOCALHOST, 0)),
+        ..ServeOptions::default()
+    }
 }
 
 fn env(terrain: Terrain) -> VecEnv {
@@ -85,33 +175,52 @@ fn rrd_file_holds_robot_steps_and_reward_series() {
     assert_eq!(recorder.finish().expect("finish"), None);
     let bytes = std::fs::read(&file).expect("rrd written");
     std::fs::remove_dir_all(&dir).ok();
-    let entities = decode(&bytes);
+    check_whole_rollout(&decode(&bytes));
+}
 
+/// What is missing from a whole rollout: the robot's bodies with one pose per step (step 0,
+/// the initial state, plus one per policy step) and static shapes, every reward series (one
+/// row per step), the per-step series, the static scene. Empty when it is all there.
+fn rollout_gaps(entities: &BTreeMap<String, EntityRows>) -> Vec<String> {
+    let mut gaps = Vec::new();
+    let mut expect = |what: String, ok: bool| {
+        if !ok {
+            gaps.push(what);
+        }
+    };
+    let steps_0_to_n = |p: &str| {
+        entities.get(p).is_some_and(|e| {
+            e.steps.len() as u64 == STEPS + 1
+                && e.steps.first() == Some(&0)
+                && e.steps.last() == Some(&(STEPS as i64))
+        })
+    };
     let model = RobotModel::go2();
-    assert!(model.bodies.len() >= 13, "bodies: {}", model.bodies.len());
+    expect(
+        format!("13+ bodies, got {}", model.bodies.len()),
+        model.bodies.len() >= 13,
+    );
     for body in &model.bodies {
-        let e = entities
-            .get(&path(&entity::body(&body.name)))
-            .unwrap_or_else(|| panic!("no entity for body {}: {:?}", body.name, entities.keys()));
-        // Step 0 (the initial state) plus one pose per step.
-        assert_eq!(e.steps.len() as u64, STEPS + 1, "{}", body.name);
-        assert_eq!(e.steps.first(), Some(&0));
-        assert_eq!(e.steps.last(), Some(&(STEPS as i64)));
-        // Its shapes are static children.
-        let geom = format!("{}/geom0", path(&entity::body(&body.name)));
-        assert!(
+        let p = path(&entity::body(&body.name));
+        expect(format!("{p}: a pose per step"), steps_0_to_n(&p));
+        let geom = format!("{p}/geom0");
+        expect(
+            format!("{geom}: static"),
             entities.get(&geom).is_some_and(|g| g.is_static),
-            "{geom} static"
         );
     }
-    let total = &entities[&path(entity::REWARD_TOTAL)];
-    assert_eq!(total.rows as u64, STEPS);
-    assert_eq!(total.steps.len() as u64, STEPS);
-    for term in RewardTerm::ALL {
-        let series = entities
-            .get(&path(&entity::reward(term.name())))
-            .unwrap_or_else(|| panic!("no series for {}", term.name()));
-        assert_eq!(series.rows as u64, STEPS, "{}", term.name());
+    let mut series = vec![path(entity::REWARD_TOTAL)];
+    series.extend(
+        RewardTerm::ALL
+            .iter()
+            .map(|t| path(&entity::reward(t.name()))),
+    );
+    for p in series {
+        // Rewards start at step 1.
+        let ok = entities
+            .get(&p)
+            .is_some_and(|e| e.rows as u64 == STEPS && e.steps.len() as u64 == STEPS);
+        expect(format!("{p}: a row per step"), ok);
     }
     for p in [
         entity::FEET,
@@ -120,10 +229,20 @@ fn rrd_file_holds_robot_steps_and_reward_series() {
         "contact/FL",
         "command/vx",
     ] {
-        assert_eq!(entities[&path(p)].steps.len() as u64, STEPS + 1, "{p}");
+        expect(format!("{p}: a row per step"), steps_0_to_n(&path(p)));
     }
-    assert!(entities[&path(entity::TERRAIN)].is_static);
-    assert!(entities[&path(entity::WORLD)].is_static);
+    for p in [entity::TERRAIN, entity::WORLD] {
+        expect(
+            format!("{p}: static"),
+            entities.get(&path(p)).is_some_and(|e| e.is_static),
+        );
+    }
+    gaps
+}
+
+fn check_whole_rollout(entities: &BTreeMap<String, EntityRows>) {
+    let gaps = rollout_gaps(entities);
+    assert!(gaps.is_empty(), "missing: {gaps:#?}");
 }
 
 #[test]
@@ -166,4 +285,84 @@ fn an_env_outside_the_batch_is_an_error() {
         err.to_string().contains("env 5 is not in the batch of 2"),
         "{err}"
     );
+}
+
+#[test]
+fn a_served_recording_reaches_a_viewer_joining_after_the_rollout() {
+    let mut env = env(Terrain::Flat);
+    let mut recorder =
+        Recorder::serve(&loopback_any_port(), RecordOptions::default()).expect("serve");
+    let url = recorder.serve_url().expect("served");
+    record(&mut recorder, &mut env);
+    // An end marker after everything else (the flush orders it last): the stream has no end
+    // of its own, and the rollout's last chunks may come in any order.
+    recorder.stream().flush_blocking().expect("flush");
+    recorder
+        .stream()
+        .log(END, &rerun::TextLog::new("end"))
+        .expect("end marker");
+    let served = recorder.finish_serving().expect("keep serving");
+    let addr = served.addr();
+    assert!(addr.ip().is_loopback() && addr.port() != 0, "{addr}");
+    assert_eq!(url, format!("rerun+http://127.0.0.1:{}/proxy", addr.port()));
+    assert_eq!(served.url(), url);
+
+    // The viewer joins only now: everything was buffered for it.
+    let tally = join_as_viewer(&url, |t| t.entities.contains_key(&path(END)));
+    check_whole_rollout(&tally.entities);
+    assert_eq!(tally.store_ids.len(), 1, "{:?}", tally.store_ids);
+
+    served.shutdown().expect("clean shutdown");
+    assert_stops_listening(addr);
+}
+
+#[test]
+fn a_served_rrd_is_the_same_recording_for_every_viewer() {
+    let mut env = env(Terrain::Flat);
+    let mut recorder = Recorder::in_memory(RecordOptions::default()).expect("memory");
+    record(&mut recorder, &mut env);
+    let bytes = recorder.finish().expect("finish").expect("bytes");
+    let from_file = decode_all(&bytes);
+
+    let served = Served::rrd(&bytes, &loopback_any_port()).expect("serve the rrd");
+    let addr = served.addr();
+    // Two viewers, one after the other: the second gets everything too.
+    for _ in 0..2 {
+        let tally = join_as_viewer(&served.url(), |t| t.msgs == from_file.msgs);
+        check_whole_rollout(&tally.entities);
+        // The replay is the recording itself, not a new one wrapping it.
+        assert_eq!(tally.store_ids, from_file.store_ids);
+        let rows = |t: &Tally| -> Vec<(String, usize)> {
+            t.entities
+                .iter()
+                .map(|(k, v)| (k.clone(), v.rows))
+                .collect()
+        };
+        assert_eq!(rows(&tally), rows(&from_file));
+    }
+    served.shutdown().expect("clean shutdown");
+    assert_stops_listening(addr);
+}
+
+#[test]
+fn serving_on_a_port_in_use_is_an_error() {
+    let taken = TcpListener::bind((Ipv4Addr::LOCALHOST, 0)).expect("a port");
+    let options = ServeOptions {
+        addr: taken.local_addr().expect("addr"),
+        ..ServeOptions::default()
+    };
+    let err = Recorder::serve(&options, RecordOptions::default()).expect_err("in use");
+    assert!(matches!(err, RecordError::Serve { .. }), "{err}");
+    let mut recorder = Recorder::in_memory(RecordOptions::default()).expect("memory");
+    recorder.begin(&env(Terrain::Flat)).expect("begin");
+    let bytes = recorder.finish().expect("finish").expect("bytes");
+    let err = Served::rrd(&bytes, &options).expect_err("in use");
+    assert!(err.to_string().contains("in use"), "{err}");
+    let err = Served::rrd(b"not an rrd", &loopback_any_port()).expect_err("invalid");
+    assert!(matches!(err, RecordError::InvalidRrd(_)), "{err}");
+    let not_served = Recorder::in_memory(RecordOptions::default()).expect("memory");
+    assert!(matches!(
+        not_served.finish_serving(),
+        Err(RecordError::NotServed)
+    ));
 }
