@@ -9,7 +9,8 @@ batched call (ms), per env (us), and the median CPU time of the calling thread (
 one thread; with more, torch's worker threads are not counted)::
 
     .venv/bin/python tests/data/make_test_policy.py --paper /tmp/paper_policy.onnx
-    .venv/bin/python tests/data/bench_torch.py --onnx /tmp/paper_policy.onnx --batch 4096 --threads 1
+    .venv/bin/python tests/data/bench_torch.py --onnx /tmp/paper_policy.onnx --batch 4096 \
+        --threads 1
 """
 
 from __future__ import annotations

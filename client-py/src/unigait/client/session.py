@@ -104,7 +104,6 @@ class Client(ClosesOnExit):
         self.channel.close()
 
 
-
 _END = object()
 
 
@@ -225,4 +224,3 @@ class Session(ClosesOnExit):
         finally:
             if self._owns_client:
                 self.client.close()
-

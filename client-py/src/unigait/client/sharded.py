@@ -124,7 +124,6 @@ class ShardedSession(ClosesOnExit):
                 c.close()
 
 
-
 def open_session(
     addresses: str | Sequence[str], config: SessionConfig, *, connect_timeout_s: float = 10.0
 ) -> Session | ShardedSession:
