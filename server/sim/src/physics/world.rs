@@ -511,8 +511,9 @@ impl RobotWorld {
 }
 
 /// Stiffness (N m/rad) and damping (N m s/rad) of the joint stops. Rapier's limit constraint
-/// only engages once a joint is past its limit and, with our first solver setting (4 substeps), let fast joints overshoot by
-/// up to 0.16 rad; this explicit spring backs it up (stable: k dt^2 / I < 0.2 with armature).
+/// only engages once a joint is past its limit and, with our first solver setting (4 substeps),
+/// let fast joints overshoot by up to 0.16 rad; this explicit spring backs it up (stable:
+/// k dt^2 / I < 0.2 with armature).
 const LIMIT_STIFFNESS: f32 = 500.0;
 const LIMIT_DAMPING: f32 = 5.0;
 
