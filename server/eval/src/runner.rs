@@ -236,30 +236,10 @@ impl Rollout {
         command: Option<[f32; 3]>,
     ) -> Result<(), EvalError> {
         self.env.set_modes(mask, mode.task_mode(), command)?;
-        self.refresh_newest_observation();
+        // Envs that did not switch are unchanged: their newest entry already is their current
+        // observation.
+        self.history.replace_newest(&self.env.output().obs);
         Ok(())
-    }
-
-    /// Rebuild the histories with the current observations as their newest entry.
-    /// [`ObsHistory`] only appends, so the rebuild replays the kept entries oldest first and
-    /// appends the current observations. Envs that did not switch come out unchanged: their
-    /// newest entry already is their current observation.
-    fn refresh_newest_observation(&mut self) {
-        let spec = sim_policy_spec();
-        let (n, d) = (self.history.num_envs(), spec.obs_dim);
-        let entry = |h: &ObsHistory, k: usize| -> Vec<f32> {
-            (0..n)
-                .flat_map(|i| h.env(i)[k * d..(k + 1) * d].iter().copied())
-                .collect()
-        };
-        let oldest = spec.history.saturating_sub(1);
-        let mut rebuilt = ObsHistory::new(spec, n, &entry(&self.history, oldest));
-        let no_resets = vec![0u8; n];
-        for k in (1..oldest).rev() {
-            rebuilt.push(&entry(&self.history, k), &no_resets);
-        }
-        rebuilt.push(&self.env.output().obs, &no_resets);
-        self.history = rebuilt;
     }
 
     /// One policy step of every env; ended envs start a fresh history with their new first

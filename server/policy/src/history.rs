@@ -51,6 +51,16 @@ impl ObsHistory {
         }
     }
 
+    /// Overwrite every env's newest entry (o_t) with `obs` (`[num_envs, obs_dim]`), the older
+    /// entries unchanged: for an observation rewritten in place (a mode switch) rather than a
+    /// new step.
+    pub fn replace_newest(&mut self, obs: &[f32]) {
+        let (d, w) = (self.spec.obs_dim, self.spec.input_width());
+        for (row, o) in self.buffer.chunks_mut(w).zip(obs.chunks(d)) {
+            row[..d].copy_from_slice(o);
+        }
+    }
+
     /// Push the new observations `obs` (`[num_envs, obs_dim]`); envs whose `reset` entry is
     /// non-zero began a new episode with this observation and get a fresh history.
     pub fn push(&mut self, obs: &[f32], reset: &[u8]) {
@@ -85,5 +95,8 @@ mod test {
         h.push(&[3.0, 3.0, 7.0, 7.0], &[0, 1]);
         assert_eq!(h.env(0), &[3.0, 3.0, 2.0, 2.0, 1.0, 1.0]);
         assert_eq!(h.env(1), &[7.0, 7.0, 7.0, 7.0, 7.0, 7.0]);
+        h.replace_newest(&[4.0, 4.0, 8.0, 8.0]);
+        assert_eq!(h.env(0), &[4.0, 4.0, 2.0, 2.0, 1.0, 1.0]);
+        assert_eq!(h.env(1), &[8.0, 8.0, 7.0, 7.0, 7.0, 7.0]);
     }
 }

@@ -69,12 +69,18 @@ impl ServeOptions {
 /// The URL a viewer connects to for a server listening on `addr`. An unspecified address
 /// (`0.0.0.0`, `::`) is joined locally through loopback.
 pub fn proxy_url(addr: SocketAddr) -> String {
+    format!("rerun+http://{}/proxy", local_target(addr))
+}
+
+/// Where a local client reaches a server listening on `addr`: an unspecified address (`0.0.0.0`,
+/// `::`) through loopback, any other as it is.
+fn local_target(addr: SocketAddr) -> SocketAddr {
     let ip = match addr.ip() {
         IpAddr::V4(ip) if ip.is_unspecified() => IpAddr::V4(Ipv4Addr::LOCALHOST),
         IpAddr::V6(ip) if ip.is_unspecified() => IpAddr::V6(Ipv6Addr::LOCALHOST),
         ip => ip,
     };
-    format!("rerun+http://{}/proxy", SocketAddr::new(ip, addr.port()))
+    SocketAddr::new(ip, addr.port())
 }
 
 fn serve_err(addr: SocketAddr, reason: impl std::fmt::Display) -> RecordError {
@@ -105,15 +111,7 @@ pub(crate) fn claim_addr(addr: SocketAddr) -> Result<SocketAddr, RecordError> {
 
 /// Block until the server at `addr` accepts TCP connections.
 pub(crate) fn wait_listening(addr: SocketAddr) -> Result<(), RecordError> {
-    let target = match addr.ip() {
-        IpAddr::V4(ip) if ip.is_unspecified() => {
-            SocketAddr::new(IpAddr::V4(Ipv4Addr::LOCALHOST), addr.port())
-        }
-        IpAddr::V6(ip) if ip.is_unspecified() => {
-            SocketAddr::new(IpAddr::V6(Ipv6Addr::LOCALHOST), addr.port())
-        }
-        _ => addr,
-    };
+    let target = local_target(addr);
     let start = Instant::now();
     loop {
         match TcpStream::connect_timeout(&target, Duration::from_millis(200)) {
