@@ -20,7 +20,7 @@ ensure_system_packages() {
 
 # Create the repo's venv and install the Python client with its extras (plus any given extras).
 ensure_python_env() {
-  local extras="dev,torch,rsl_rl,gymnasium"
+  local extras="dev,torch,rsl-rl,gymnasium,mujoco,ray"
   for e in "$@"; do extras="$extras,$e"; done
   if [ ! -x "$VENV/bin/python" ]; then
     python3 -m venv "$VENV"

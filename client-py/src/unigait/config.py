@@ -70,9 +70,13 @@ class RunnerConfig:
         plot_interval: Redraw the PNG every this many iterations.
         log_dir: Output directory (CSV, PNG, checkpoints, config).
         device: Torch device.
-        torch_threads: Torch intra-op threads (1; 0: torch's default). On a 2-core box that
-            also runs the server, two OpenMP threads made the PPO update 3-5x slower than one
-            (a spinning thread waits for a core the simulation holds).
+        torch_threads: Torch intra-op threads while rolling out (1; 0: torch's default). The
+            server steps the envs on the same cores then; a second OpenMP thread only waits for
+            a core the simulation holds.
+        update_threads: Torch intra-op threads during the PPO and estimator updates (2; 0: as
+            ``torch_threads``). The server is idle then, and the update is compute-bound. The
+            CLI sets ``OMP_WAIT_POLICY=PASSIVE`` so that idle OpenMP threads sleep instead of
+            spinning against the simulation.
         seed: Torch seed.
         quiet: Print one line per iteration instead of the full block.
     """
@@ -84,6 +88,7 @@ class RunnerConfig:
     log_dir: str = "runs/unigait"
     device: str = "cpu"
     torch_threads: int = 1
+    update_threads: int = 2
     seed: int = 1
     quiet: bool = False
 

@@ -11,8 +11,8 @@ use unigait_sim::terrain::Terrain;
 
 use crate::error::EvalError;
 use crate::metrics::{
-    HOLD_S, QUAD_PITCH, Summary, TrackingAccumulator, TraversalEnd, UPRIGHT_PITCH, first_sustained,
-    median, rate, traversal_step,
+    EpisodeOutcomes, HOLD_S, HeadHits, QUAD_PITCH, Summary, TrackingAccumulator, TraversalEnd,
+    UPRIGHT_PITCH, UPRIGHT_SETTLE_S, first_sustained, median, rate, traversal_step,
 };
 use crate::report::{
     EvalReport, HeightTrace, TransitionReport, TransitionTrial, TraversalCaseReport,
@@ -145,7 +145,7 @@ pub fn evaluate_scenario(
          config's other domain randomisation and observation noise stay on"
             .into(),
     );
-    let mut tracking = [TrackingAccumulator::default(); 2];
+    let mut tracking = RunTotals::default();
     match &scenario.kind {
         ScenarioKind::Traversal(spec) => {
             let t = run_traversal(spec, n, policies, options, observer, &mut tracking)?;
@@ -188,6 +188,36 @@ pub fn evaluate_scenario(
             ));
         }
     }
+    let head = &tracking.head;
+    report.metrics.insert("head_hits".into(), head.hits as f64);
+    report
+        .metrics
+        .insert("head_contact_share".into(), head.contact_share());
+    report.notes.push(
+        "head hits: times a robot's head came down on the terrain (neither terminating nor \
+         penalised; the paper's failure walking forward up stairs on two legs); \
+         head_contact_share: share of env steps with the head on the terrain"
+            .into(),
+    );
+    let outcomes = tracking.outcomes;
+    for (m, mode) in [Mode::Biped, Mode::Quad].into_iter().enumerate() {
+        if let Some(r) = outcomes.termination_rate(m) {
+            let name = format!("tracking/{}/termination_rate", mode.name());
+            report.metrics.insert(name, r);
+        }
+    }
+    if let Some(share) = outcomes.upright_share() {
+        report
+            .metrics
+            .insert("tracking/biped/upright_share".into(), share);
+    }
+    report.notes.push(format!(
+        "tracking/<mode>/termination_rate: share of the episodes (ended, or running at the end) \
+         ended by a termination, by the mode they ended in; tracking/biped/upright_share: share \
+         of biped-mode steps at least {UPRIGHT_SETTLE_S} s into their episode and mode with \
+         pitch > {UPRIGHT_PITCH} rad"
+    ));
+    let tracking = &tracking.tracking;
     for (mode, acc) in [(Mode::Biped, &tracking[0]), (Mode::Quad, &tracking[1])] {
         if let Some(stats) = acc.stats() {
             let m = &mut report.metrics;
@@ -260,9 +290,22 @@ fn evaluate_table_vi(
     Ok(report)
 }
 
-fn merge_tracking(into: &mut [TrackingAccumulator; 2], rollout: &Rollout) {
-    into[0].merge(rollout.tracking(Mode::Biped));
-    into[1].merge(rollout.tracking(Mode::Quad));
+/// What every rollout of a scenario adds up to.
+#[derive(Clone, Copy, Debug, Default)]
+struct RunTotals {
+    /// Tracking error by mode (biped, quad).
+    tracking: [TrackingAccumulator; 2],
+    /// Head contacts.
+    head: HeadHits,
+    /// Episode ends and upright time.
+    outcomes: EpisodeOutcomes,
+}
+
+fn merge_tracking(into: &mut RunTotals, rollout: &Rollout) {
+    into.tracking[0].merge(rollout.tracking(Mode::Biped));
+    into.tracking[1].merge(rollout.tracking(Mode::Quad));
+    into.head.merge(rollout.head_hits());
+    into.outcomes.merge(&rollout.outcomes());
 }
 
 fn steps_for(config: &TaskConfig, seconds: f32) -> u32 {
@@ -275,7 +318,7 @@ fn run_traversal(
     policies: &Policies,
     options: &EvalOptions,
     observer: &mut dyn StepObserver,
-    tracking: &mut [TrackingAccumulator; 2],
+    tracking: &mut RunTotals,
 ) -> Result<TraversalReport, EvalError> {
     let cases = spec.cases.len().max(1);
     let mut report = TraversalReport {
@@ -398,7 +441,7 @@ fn run_transition(
     policies: &Policies,
     options: &EvalOptions,
     observer: &mut dyn StepObserver,
-    tracking: &mut [TrackingAccumulator; 2],
+    tracking: &mut RunTotals,
 ) -> Result<TransitionReport, EvalError> {
     let config = transition_config(&options.base_config, spec)?;
     let dt = config.policy_dt();
@@ -606,7 +649,7 @@ fn run_tracking(
     policies: &Policies,
     options: &EvalOptions,
     observer: &mut dyn StepObserver,
-    tracking: &mut [TrackingAccumulator; 2],
+    tracking: &mut RunTotals,
 ) -> Result<(), EvalError> {
     let config = tracking_config(&options.base_config, spec)?;
     let steps = steps_for(&config, spec.duration_s);

@@ -10,6 +10,9 @@ pub const QUAD_PITCH: f32 = 0.35;
 pub const HOLD_S: f32 = 0.3;
 /// Steps after a reset or a mode change left out of the tracking error (s).
 pub const TRACKING_SETTLE_S: f32 = 1.0;
+/// Biped time this soon after a reset or a mode change is left out of the upright share (s):
+/// the robot is still getting up.
+pub const UPRIGHT_SETTLE_S: f32 = 2.0;
 
 /// How one traversal trial ended.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
@@ -173,6 +176,82 @@ impl TrackingAccumulator {
     }
 }
 
+/// Head contacts over a rollout: the head is not the trunk, so touching the terrain with it
+/// neither ends an episode nor costs reward, and is counted here instead.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct HeadHits {
+    /// Times a head came down on the terrain (steps with contact after a step without, per env).
+    pub hits: u64,
+    /// Env steps with the head on the terrain.
+    pub contact_steps: u64,
+    /// Env steps counted.
+    pub env_steps: u64,
+}
+
+impl HeadHits {
+    /// Count one step of every env: `contact` now and `before` (the last step's flags, updated).
+    pub fn add_step(&mut self, contact: &[u8], before: &mut [bool]) {
+        for (c, b) in contact.iter().zip(before.iter_mut()) {
+            let now = *c != 0;
+            self.hits += u64::from(now && !*b);
+            self.contact_steps += u64::from(now);
+            *b = now;
+        }
+        self.env_steps += contact.len() as u64;
+    }
+
+    /// Add another count.
+    pub fn merge(&mut self, other: &HeadHits) {
+        self.hits += other.hits;
+        self.contact_steps += other.contact_steps;
+        self.env_steps += other.env_steps;
+    }
+
+    /// Share of env steps with the head on the terrain (0 without steps).
+    pub fn contact_share(&self) -> f64 {
+        if self.env_steps == 0 {
+            0.0
+        } else {
+            self.contact_steps as f64 / self.env_steps as f64
+        }
+    }
+}
+
+/// How the episodes of a rollout ended, and how long biped mode stood upright.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct EpisodeOutcomes {
+    /// Episodes ended by a termination, by the mode in force when they ended (biped, quad).
+    pub terminated: [u64; 2],
+    /// Episodes counted (ended, or still running at the end), by the same mode.
+    pub episodes: [u64; 2],
+    /// Biped-mode env steps at least [`UPRIGHT_SETTLE_S`] into their episode and mode.
+    pub biped_steps: u64,
+    /// Of those, the steps with pitch > [`UPRIGHT_PITCH`].
+    pub upright_steps: u64,
+}
+
+impl EpisodeOutcomes {
+    /// Add another count.
+    pub fn merge(&mut self, other: &EpisodeOutcomes) {
+        for m in 0..2 {
+            self.terminated[m] += other.terminated[m];
+            self.episodes[m] += other.episodes[m];
+        }
+        self.biped_steps += other.biped_steps;
+        self.upright_steps += other.upright_steps;
+    }
+
+    /// Share of the episodes of mode index `m` (0 biped, 1 quad) ended by a termination.
+    pub fn termination_rate(&self, m: usize) -> Option<f64> {
+        rate(self.terminated[m] as usize, self.episodes[m] as usize)
+    }
+
+    /// Share of the counted biped steps spent upright.
+    pub fn upright_share(&self) -> Option<f64> {
+        rate(self.upright_steps as usize, self.biped_steps as usize)
+    }
+}
+
 /// The median of `values` (None when empty).
 pub fn median(values: &[f64]) -> Option<f64> {
     let mut v: Vec<f64> = values.iter().copied().filter(|x| x.is_finite()).collect();
@@ -243,5 +322,38 @@ mod test {
         assert_eq!(median(&[1.0, 2.0]), Some(1.5));
         assert_eq!(median(&[]), None);
         assert_eq!(rate(1, 4), Some(0.25));
+    }
+
+    #[test]
+    fn episode_outcomes_by_hand() {
+        let mut a = EpisodeOutcomes {
+            terminated: [1, 0],
+            episodes: [4, 2],
+            biped_steps: 10,
+            upright_steps: 9,
+        };
+        a.merge(&EpisodeOutcomes {
+            terminated: [0, 1],
+            episodes: [0, 2],
+            biped_steps: 10,
+            upright_steps: 8,
+        });
+        assert_eq!(a.termination_rate(0), Some(0.25));
+        assert_eq!(a.termination_rate(1), Some(0.25));
+        assert_eq!(a.upright_share(), Some(17.0 / 20.0));
+        assert_eq!(EpisodeOutcomes::default().termination_rate(0), None);
+    }
+
+    #[test]
+    fn a_head_hit_is_counted_once_per_landing() {
+        let mut h = HeadHits::default();
+        let mut before = [false, false];
+        for step in [[1u8, 0], [1, 0], [0, 1], [1, 1]] {
+            h.add_step(&step, &mut before);
+        }
+        // env 0 lands twice (steps 1 and 4), env 1 once (step 3).
+        assert_eq!((h.hits, h.contact_steps, h.env_steps), (3, 5, 8));
+        assert!((h.contact_share() - 5.0 / 8.0).abs() < 1e-12);
+        assert_eq!(HeadHits::default().contact_share(), 0.0);
     }
 }

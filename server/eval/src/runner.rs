@@ -9,7 +9,10 @@ use unigait_sim::robot::NUM_JOINTS;
 use unigait_sim::task::{OBS_DIM, TaskMode, euler_pitch, heading_direction, to_heading_frame};
 
 use crate::error::EvalError;
-use crate::metrics::{TRACKING_SETTLE_S, TrackingAccumulator, UPRIGHT_PITCH};
+use crate::metrics::{
+    EpisodeOutcomes, HeadHits, TRACKING_SETTLE_S, TrackingAccumulator, UPRIGHT_PITCH,
+    UPRIGHT_SETTLE_S,
+};
 use crate::scenario::Mode;
 
 /// The shapes every policy must fit here: 3 observations of the sim's 53, 12 actions.
@@ -181,6 +184,10 @@ pub struct Rollout {
     since_mode_change: Vec<u32>,
     last_mode: Vec<u8>,
     tracking: [TrackingAccumulator; 2],
+    head: HeadHits,
+    head_before: Vec<bool>,
+    upright_settle_steps: u32,
+    outcomes: EpisodeOutcomes,
 }
 
 impl Rollout {
@@ -188,7 +195,9 @@ impl Rollout {
     pub fn new(env: VecEnv) -> Self {
         let n = env.num_envs();
         let history = ObsHistory::new(sim_policy_spec(), n, &env.output().obs);
-        let settle_steps = (TRACKING_SETTLE_S / env.context().config.policy_dt()).round() as u32;
+        let dt = env.context().config.policy_dt();
+        let settle_steps = (TRACKING_SETTLE_S / dt).round() as u32;
+        let upright_settle_steps = (UPRIGHT_SETTLE_S / dt).round() as u32;
         Self {
             last_mode: env.output().mode.clone(),
             history,
@@ -197,6 +206,10 @@ impl Rollout {
             settle_steps,
             since_mode_change: vec![0; n],
             tracking: Default::default(),
+            head: HeadHits::default(),
+            head_before: vec![false; n],
+            upright_settle_steps,
+            outcomes: EpisodeOutcomes::default(),
             env,
         }
     }
@@ -222,6 +235,23 @@ impl Rollout {
             Mode::Biped => 0,
             Mode::Quad => 1,
         }]
+    }
+
+    /// How the episodes ended so far; episodes still running count as episodes without a
+    /// termination.
+    pub fn outcomes(&self) -> EpisodeOutcomes {
+        let mut o = self.outcomes;
+        for i in 0..self.env.num_envs() {
+            if self.env.env_state(i).episode_step > 0 {
+                o.episodes[mode_index(self.env.output().mode[i])] += 1;
+            }
+        }
+        o
+    }
+
+    /// Head contacts so far.
+    pub fn head_hits(&self) -> &HeadHits {
+        &self.head
     }
 
     /// Switch the envs whose `mask` entry is non-zero (one entry per env) to `mode` now, with
@@ -253,9 +283,16 @@ impl Rollout {
             .map(|i| out.terminated[i] | out.truncated[i])
             .collect();
         self.history.push(&out.obs, &ended);
+        self.head.add_step(&out.head_contact, &mut self.head_before);
         self.step += 1;
         for (i, &end) in ended.iter().enumerate() {
             let p = probe(&self.env, i);
+            if end != 0 {
+                // The mode the episode ended in is the one its last action was taken in.
+                let m = mode_index(self.last_mode[i]);
+                self.outcomes.episodes[m] += 1;
+                self.outcomes.terminated[m] += u64::from(p.terminated);
+            }
             let code = self.env.output().mode[i];
             if code != self.last_mode[i] || end != 0 {
                 self.since_mode_change[i] = 0;
@@ -263,7 +300,12 @@ impl Rollout {
             } else {
                 self.since_mode_change[i] += 1;
             }
-            let settled = self.since_mode_change[i].min(p.episode_step) >= self.settle_steps;
+            let in_mode = self.since_mode_change[i].min(p.episode_step);
+            if end == 0 && p.mode == Some(Mode::Biped) && in_mode >= self.upright_settle_steps {
+                self.outcomes.biped_steps += 1;
+                self.outcomes.upright_steps += u64::from(p.pitch > UPRIGHT_PITCH);
+            }
+            let settled = in_mode >= self.settle_steps;
             if !settled || end != 0 {
                 continue;
             }
@@ -277,4 +319,9 @@ impl Rollout {
         }
         Ok(())
     }
+}
+
+/// Index of a mode code in per-mode arrays: 0 biped, 1 quad.
+fn mode_index(code: u8) -> usize {
+    usize::from(code != TaskMode::Biped as u8)
 }

@@ -316,7 +316,8 @@ pub fn scenarios() -> Vec<Scenario> {
             default_envs: 64,
             kind: ScenarioKind::Tracking(TrackingSpec {
                 mode: Mode::Quad,
-                duration_s: 10.0,
+                // One whole episode: the milestones ask for 18 s without a termination.
+                duration_s: 18.0,
             }),
         },
         Scenario {
@@ -326,7 +327,7 @@ pub fn scenarios() -> Vec<Scenario> {
             default_envs: 64,
             kind: ScenarioKind::Tracking(TrackingSpec {
                 mode: Mode::Biped,
-                duration_s: 10.0,
+                duration_s: 18.0,
             }),
         },
     ]

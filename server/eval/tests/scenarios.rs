@@ -313,12 +313,17 @@ fn onnx_test_policy_runs_end_to_end() {
     let mut counter = Counter::default();
     let report = evaluate("tracking_quad", &policies, &options(4), &mut counter).expect("runs");
     assert_eq!((counter.cases, counter.ends), (1, 1));
-    assert_eq!(counter.steps, 500, "10 s at 50 Hz");
-    assert!(
-        report
-            .metrics
-            .contains_key("tracking/quad/lin_vel_error_mps")
-    );
+    assert_eq!(counter.steps, 900, "one 18 s episode at 50 Hz");
+    for name in [
+        "tracking/quad/lin_vel_error_mps",
+        "tracking/quad/termination_rate",
+        "head_hits",
+        "head_contact_share",
+    ] {
+        assert!(report.metrics.contains_key(name), "no {name}");
+    }
+    let rate = report.metrics["tracking/quad/termination_rate"];
+    assert!((0.0..=1.0).contains(&rate), "termination rate {rate}");
     let json: serde_json::Value = serde_json::from_str(&report.to_json()).expect("valid JSON");
     assert_eq!(json["scenario"], "tracking_quad");
     assert_eq!(json["policy"], "unified");

@@ -111,7 +111,7 @@ fn quat(q: impl Into<[f32; 4]>) -> Quaternion {
 
 fn role_color(role: ColliderRole) -> Color {
     match role {
-        ColliderRole::Trunk => Color::from_rgb(70, 110, 170),
+        ColliderRole::Trunk | ColliderRole::Head => Color::from_rgb(70, 110, 170),
         ColliderRole::Penalised => Color::from_rgb(225, 140, 60),
         ColliderRole::Foot(_) => Color::from_rgb(40, 40, 40),
         ColliderRole::Other => Color::from_rgb(150, 150, 150),

@@ -124,6 +124,7 @@ pub fn step_result(
         final_env_ids: Some(u32_tensor(&ended, &[k])),
         mode: Some(u8_tensor(&out.mode, &[n])),
         terrain_level: Some(u32_tensor(&out.terrain_level, &[n])),
+        head_contact: Some(u8_tensor(&out.head_contact, &[n])),
         step_count,
         nonfinite_resets,
     }

@@ -7,6 +7,7 @@ mod convert;
 mod error;
 mod evaluate;
 mod limits;
+pub mod probe;
 mod server;
 mod service;
 mod session;

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
-use unigait_server::{Limits, ServeOptions, bench, is_loopback, serve, shutdown_signal};
+use unigait_server::{Limits, ServeOptions, bench, is_loopback, probe, serve, shutdown_signal};
 use unigait_sim::task::TaskConfig;
 
 /// The unigait simulation service.
@@ -22,6 +22,8 @@ enum Command {
     Serve(ServeArgs),
     /// Measure env steps per second of the simulation core, in process.
     Bench(bench::BenchArgs),
+    /// Share of episodes a termination ends early when every env holds the default stance.
+    Probe(probe::ProbeArgs),
 }
 
 #[derive(Debug, clap::Args)]
@@ -137,6 +139,10 @@ fn main() -> Result<()> {
             } else {
                 println!("{}", serde_json::to_string_pretty(&report)?);
             }
+            Ok(())
+        }
+        Command::Probe(args) => {
+            println!("{}", serde_json::to_string_pretty(&probe::run(&args)?)?);
             Ok(())
         }
     }

@@ -27,7 +27,7 @@ fn standing_robot_settles_and_stays_still() {
         last.base_pos.z
     );
     assert!(
-        euler_pitch(last.base_rot).abs() < 0.02,
+        euler_pitch(last.base_rot).abs() < 0.03,
         "pitch {}",
         euler_pitch(last.base_rot)
     );
@@ -96,16 +96,19 @@ fn dropped_robot_lands_and_settles() {
 }
 
 /// Extreme targets (actions at the clip limit, changing sign at random every step) never drive
-/// torques past the effort limits. Targets are clipped to the joint range, so the motors never
-/// push a joint into its stop; whipped legs still overshoot a stop by up to 0.07 rad (measured
-/// with 2 substeps x 3 PGS iterations; 0.11 with 4 substeps x 1) before it throws them back, so
-/// the bound here is 0.12 rad.
+/// torques past the effort limits. Targets are not clamped to the joint range (as legged_gym),
+/// so the motors press joints into their stops with their full torque, which the stop spring
+/// (500 N m/rad, backing rapier's limit) meets at 0.07 rad for the knee's 35.55 N m; legs
+/// whipped from stop to stop every step overshoot by up to 0.30 rad (measured; 0.07 when
+/// targets were clamped), so the bound is 0.35 rad, still short of the +-pi wrap of the
+/// measured angle.
 #[test]
 fn extreme_targets_respect_joint_and_torque_limits() {
     let n = 16;
     let mut env = batch(calm_config(""), n, 3, 1);
     let model = RobotModel::go2();
     let mut state = 11;
+    let mut worst: f32 = 0.0;
     for _ in 0..250 {
         let actions: Vec<f32> = random_actions(n, &mut state)
             .iter()
@@ -122,8 +125,9 @@ fn extreme_targets_respect_joint_and_torque_limits() {
                     joint.name
                 );
                 let q = env.robot_state(i).q[j];
+                worst = worst.max(joint.sim_lower - q).max(q - joint.sim_upper);
                 assert!(
-                    q >= joint.sim_lower - 0.12 && q <= joint.sim_upper + 0.12,
+                    q >= joint.sim_lower - 0.35 && q <= joint.sim_upper + 0.35,
                     "{} at {q} outside [{}, {}]",
                     joint.name,
                     joint.sim_lower,
@@ -132,6 +136,10 @@ fn extreme_targets_respect_joint_and_torque_limits() {
             }
         }
     }
+    assert!(
+        worst > 0.0,
+        "no joint reached a stop: the test does not test"
+    );
 }
 
 /// One thread and two threads give bit-identical trajectories.

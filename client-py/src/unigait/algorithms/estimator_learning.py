@@ -4,9 +4,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import torch
 from torch.nn import functional
 
+from unigait.algorithms.optim import adam
 from unigait.modules.estimator import Estimator
 from unigait.storage.rollout_storage import RolloutStorage
 
@@ -39,7 +39,7 @@ class EstimatorLearning:
     def __init__(self, estimator: Estimator, cfg: EstimatorConfig) -> None:
         self.estimator = estimator
         self.cfg = cfg
-        self.optimizer = torch.optim.Adam(estimator.parameters(), lr=cfg.learning_rate)
+        self.optimizer = adam(estimator.parameters(), cfg.learning_rate)
 
     def update(self, storage: RolloutStorage) -> dict[str, float]:
         """Run the epochs; return the mean MSE."""

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
+from unigait.algorithms.optim import adam
 from unigait.modules.actor_critic import ActorCritic
 from unigait.storage.rollout_storage import RolloutStorage
 
@@ -102,7 +103,7 @@ class PPO:
         self.actor_critic = actor_critic
         self.cfg = cfg
         self.learning_rate = cfg.learning_rate
-        self.optimizer = torch.optim.Adam(actor_critic.parameters(), lr=cfg.learning_rate)
+        self.optimizer = adam(actor_critic.parameters(), cfg.learning_rate)
 
     def _set_lr(self, lr: float) -> None:
         self.learning_rate = lr

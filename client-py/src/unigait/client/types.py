@@ -101,6 +101,8 @@ class StepResult:
         terrain_level: int64 [N] terrain difficulty level.
         step_count: Steps taken by the session so far (the largest over shards).
         nonfinite_resets: Envs reset after a physics blow-up in this step.
+        head_contact: bool [N], the head touched the terrain this step (reported only: it
+            neither terminates nor costs reward).
     """
 
     obs: np.ndarray
@@ -119,6 +121,7 @@ class StepResult:
     terrain_level: np.ndarray
     step_count: int = 0
     nonfinite_resets: int = 0
+    head_contact: np.ndarray | None = None
 
     @property
     def num_envs(self) -> int:
@@ -167,6 +170,7 @@ class StepResult:
             terrain_level=level.astype(np.int64) if level.size else np.zeros(n, dtype=np.int64),
             step_count=int(msg.step_count),
             nonfinite_resets=int(msg.nonfinite_resets),
+            head_contact=flag(msg.head_contact),
         )
 
     @classmethod
@@ -203,6 +207,9 @@ class StepResult:
             terrain_level=cat("terrain_level"),
             step_count=max(p.step_count for p in parts),
             nonfinite_resets=sum(p.nonfinite_resets for p in parts),
+            head_contact=None
+            if any(p.head_contact is None for p in parts)
+            else np.concatenate([p.head_contact for p in parts]),
         )
 
 

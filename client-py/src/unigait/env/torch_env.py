@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import torch
@@ -56,9 +57,9 @@ class TorchStep:
         """bool [N]: terminated or truncated."""
         return self.terminated | self.truncated
 
-    @property
+    @cached_property
     def critic_obs(self) -> torch.Tensor:
-        """f32 [N, 77]: o_t, e_t, s_t (the critic's input)."""
+        """f32 [N, 77]: o_t, e_t, s_t (the critic's input), built once per step."""
         return torch.cat([self.obs, self.labels, self.privileged], dim=-1)
 
     @property

@@ -1,7 +1,8 @@
-"""Gaussian actor with a state-independent learned std, and a value critic."""
+"""Gaussian actor with a state-independent learned log-std, and a value critic."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import torch
@@ -21,8 +22,9 @@ class ActorCritic(nn.Module):
         actor_hidden: Actor hidden sizes.
         critic_hidden: Critic hidden sizes.
         activation: Activation name.
-        init_noise_std: Initial std of every action dimension (a free parameter, rsl_rl's "scalar"
-            std type).
+        init_noise_std: Initial std of every action dimension. The network learns its logarithm
+            (rsl_rl's "log" std type), so the std stays positive without a clamp that a step could
+            pin it to, and a step changes it by a factor rather than by an amount.
     """
 
     def __init__(
@@ -38,13 +40,19 @@ class ActorCritic(nn.Module):
         super().__init__()
         self.actor = mlp(actor_in, actor_hidden, num_actions, activation)
         self.critic = mlp(critic_in, critic_hidden, 1, activation)
-        self.std = nn.Parameter(init_noise_std * torch.ones(num_actions))
+        self.log_std = nn.Parameter(math.log(init_noise_std) * torch.ones(num_actions))
+
+    @property
+    def std(self) -> torch.Tensor:
+        """f32 [12] the action std, exp(log_std)."""
+        return self.log_std.exp()
 
     def distribution(self, actor_obs: torch.Tensor) -> Normal:
         """The action distribution for ``actor_obs`` f32 [B, actor_in]."""
         mean = self.actor(actor_obs)
-        # The std is a free parameter; a floor keeps the Normal valid if a step drives it to <= 0.
-        return Normal(mean, self.std.clamp_min(1e-4).expand_as(mean))
+        # Arguments are finite and the std positive by construction: skip torch's validation
+        # pass over every sample of every mini-batch.
+        return Normal(mean, self.std.expand_as(mean), validate_args=False)
 
     def act(self, actor_obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, Normal]:
         """Sample actions.

@@ -184,9 +184,16 @@ class OnPolicyRunner:
 
     def update(self) -> dict[str, float]:
         """PPO epochs, then the estimator's epochs, on the stored rollout."""
-        with self.timers.time("update"):
-            stats = self.ppo.update(self.storage)
-            stats.update(self.estimator_learning.update(self.storage))
+        rc = self.cfg.runner
+        rollout_threads = torch.get_num_threads()
+        if rc.update_threads > 0:
+            torch.set_num_threads(rc.update_threads)
+        try:
+            with self.timers.time("update"):
+                stats = self.ppo.update(self.storage)
+                stats.update(self.estimator_learning.update(self.storage))
+        finally:
+            torch.set_num_threads(rollout_threads)
         return stats
 
     def learn(self, num_iterations: int) -> list[dict[str, float]]:
@@ -243,6 +250,12 @@ class OnPolicyRunner:
         state = self.state_dict()
         torch.save(state, path)
         torch.save(state, path.with_name("model_latest.pt"))
+
+    def load_weights(self, path: str | Path) -> None:
+        """Take the networks of a checkpoint (staged training); optimisers and counters stay."""
+        state = torch.load(path, map_location=self.device, weights_only=False)
+        self.actor_critic.load_state_dict(state["actor_critic"])
+        self.estimator.load_state_dict(state["estimator"])
 
     def load(self, path: str | Path) -> None:
         """Restore networks, optimisers, learning rate and counters from a checkpoint."""

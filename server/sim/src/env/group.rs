@@ -122,6 +122,15 @@ impl EnvGroup {
         &self.states
     }
 
+    /// Place robot `slot` at rest with trunk pose `base` and joint angles `q` (test hook).
+    #[doc(hidden)]
+    pub fn teleport(&mut self, model: &RobotModel, slot: usize, base: Pose, q: &[f32; NUM_JOINTS]) {
+        self.world
+            .set_robot_state(model, slot, base, Vec3::ZERO, Vec3::ZERO, q);
+        self.world
+            .read_kinematics(model, slot, &mut self.states[slot]);
+    }
+
     /// Mutable world, for tests that poke the physics.
     #[doc(hidden)]
     pub fn world_mut(&mut self) -> &mut RobotWorld {
@@ -291,7 +300,7 @@ impl EnvGroup {
             &mut out.labels[slot * LABEL_DIM..(slot + 1) * LABEL_DIM],
         );
         out.privileged[slot * PRIVILEGED_DIM..(slot + 1) * PRIVILEGED_DIM]
-            .copy_from_slice(&env.randomization.privileged());
+            .copy_from_slice(&env.randomization.privileged(&sh.ctx.config.randomization));
         out.mode[slot] = env.mode as u8;
         out.terrain_level[slot] = env.terrain_level;
     }
@@ -307,12 +316,12 @@ impl EnvGroup {
             for j in 0..NUM_JOINTS {
                 let a = actions[slot * NUM_JOINTS + j].clamp(-clip, clip);
                 env.actions[0][j] = a;
-                // Targets beyond a joint's range only press it into its stop: clip them there,
-                // as the robot's own joint controller does.
-                let joint = &sh.model.joints[j];
-                self.targets[slot * NUM_JOINTS + j] = (sh.ctx.default_q[j]
-                    + cfg.env.action_scale * a)
-                    .clamp(joint.sim_lower, joint.sim_upper);
+                // Not clamped to the joint range, as legged_gym: a clamped target caps the
+                // torque a leg pushes with near its stop (kp x distance, ~13 N m at the default
+                // knee angle instead of the motor's 35.55), too little for one front leg to
+                // carry the body in the biped stance. The stops are the physics' job.
+                self.targets[slot * NUM_JOINTS + j] =
+                    sh.ctx.default_q[j] + cfg.env.action_scale * a;
             }
         }
         for _ in 0..cfg.env.decimation {
@@ -349,6 +358,8 @@ impl EnvGroup {
         let finite = self.states[slot].is_finite();
         let terms = &mut out.reward_terms[slot * RewardTerm::COUNT..(slot + 1) * RewardTerm::COUNT];
         out.nonfinite[slot] = u8::from(!finite);
+        out.head_contact[slot] =
+            u8::from(finite && self.states[slot].head_force > cfg.rewards.contact_threshold);
         out.episode_length[slot] = 0;
         let (terminated, truncated);
         if finite {
@@ -388,7 +399,7 @@ impl EnvGroup {
                 out.final_labels[range(LABEL_DIM)].fill(0.0);
             }
             out.final_privileged[range(PRIVILEGED_DIM)]
-                .copy_from_slice(&self.envs[slot].randomization.privileged());
+                .copy_from_slice(&self.envs[slot].randomization.privileged(&cfg.randomization));
             if autoreset || !finite {
                 self.reset_env(sh, slot, false);
             }
@@ -416,11 +427,13 @@ impl EnvGroup {
     }
 }
 
-/// Foot sole height above the highest terrain within `radius` of each foot.
+/// Height of each foot's frame origin (the sphere centre) above the highest terrain within
+/// `radius` of it: Eq. 4's p_i - max(H_sample,i), with p_i the foot position as legged_gym reads
+/// it (the foot body's origin), so p_des 0.08 m means the same lift as in the paper.
 fn foot_clearance_heights(sh: &Shared, s: &RobotState, radius: f32) -> [f32; NUM_FEET] {
     std::array::from_fn(|f| {
         let p = s.foot_pos[f];
-        p.z - sh.model.feet[f].radius - sh.terrain.max_height_within(p.x, p.y, radius)
+        p.z - sh.terrain.max_height_within(p.x, p.y, radius)
     })
 }
 

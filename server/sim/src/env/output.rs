@@ -34,6 +34,9 @@ pub struct StepOutput {
     pub terrain_level: Vec<u32>,
     /// 1 where the env's physics turned non-finite this step and it was reset: [N].
     pub nonfinite: Vec<u8>,
+    /// 1 where the robot's head touched the terrain during the step (neither terminating nor
+    /// penalised; the paper's failure on biped stairs): [N].
+    pub head_contact: Vec<u8>,
     /// Motor torques of the last physics step: [N, 12].
     pub torques: Vec<f32>,
 }
@@ -56,6 +59,7 @@ impl StepOutput {
             mode: vec![0; n],
             terrain_level: vec![0; n],
             nonfinite: vec![0; n],
+            head_contact: vec![0; n],
             torques: vec![0.0; n * NUM_JOINTS],
         }
     }
@@ -95,6 +99,7 @@ impl StepOutput {
         let mut mode = self.mode.chunks_mut(envs);
         let mut terrain_level = self.terrain_level.chunks_mut(envs);
         let mut nonfinite = self.nonfinite.chunks_mut(envs);
+        let mut head_contact = self.head_contact.chunks_mut(envs);
         let mut torques = self.torques.chunks_mut(envs * NUM_JOINTS);
         let mut chunks = Vec::new();
         for reward in reward.by_ref() {
@@ -114,6 +119,7 @@ impl StepOutput {
                 mode: mode.next().unwrap_or_default(),
                 terrain_level: terrain_level.next().unwrap_or_default(),
                 nonfinite: nonfinite.next().unwrap_or_default(),
+                head_contact: head_contact.next().unwrap_or_default(),
                 torques: torques.next().unwrap_or_default(),
             });
         }
@@ -138,5 +144,6 @@ pub struct OutputChunk<'a> {
     pub mode: &'a mut [u8],
     pub terrain_level: &'a mut [u32],
     pub nonfinite: &'a mut [u8],
+    pub head_contact: &'a mut [u8],
     pub torques: &'a mut [f32],
 }

@@ -386,6 +386,14 @@ impl VecEnv {
         self.groups.iter().map(|g| g.nonfinite_resets).sum()
     }
 
+    /// Place env `i`'s robot at rest: trunk pose `base`, joint angles `q` (test hook for
+    /// contact cases; the episode goes on).
+    #[doc(hidden)]
+    pub fn teleport_env(&mut self, i: usize, base: rapier3d::math::Pose, q: &[f32; NUM_JOINTS]) {
+        let epw = self.ctx.config.env.envs_per_world;
+        self.groups[i / epw].teleport(&self.model, i % epw, base, q);
+    }
+
     /// Make env `i`'s physics non-finite (test hook for the blow-up guard).
     #[doc(hidden)]
     pub fn poison_env(&mut self, i: usize) {

@@ -25,8 +25,10 @@ pub struct RobotState {
     pub foot_vel: [Vec3; NUM_FEET],
     /// Normal contact force on each foot (N), last physics step.
     pub foot_force: [f32; NUM_FEET],
-    /// Normal contact force on the trunk and head (N).
+    /// Normal contact force on the trunk (N); terminates the episode.
     pub trunk_force: f32,
+    /// Normal contact force on the head (N); reported only.
+    pub head_force: f32,
     /// Number of penalised bodies (thighs, calves) touching the terrain.
     pub penalised_contacts: u32,
     /// Number of contacts of other leg parts (hips) with the terrain.
@@ -48,6 +50,7 @@ impl RobotState {
     pub fn clear_contacts(&mut self) {
         self.foot_force = [0.0; NUM_FEET];
         self.trunk_force = 0.0;
+        self.head_force = 0.0;
         self.penalised_contacts = 0;
         self.penalised_bodies = 0;
         self.other_contacts = 0;
@@ -78,6 +81,7 @@ impl Default for RobotState {
             foot_vel: [Vec3::ZERO; NUM_FEET],
             foot_force: [0.0; NUM_FEET],
             trunk_force: 0.0,
+            head_force: 0.0,
             penalised_contacts: 0,
             penalised_bodies: 0,
             other_contacts: 0,

@@ -10,6 +10,7 @@ use rapier3d::prelude::*;
 use crate::robot::{ColliderRole, NUM_JOINTS, RobotModel, Shape};
 
 use super::actuation::{ActuatorParams, passive_torque, pd_torque};
+use super::inertia::mass_properties;
 use super::joint_state::{joint_angle, joint_speed};
 use super::robot_state::RobotState;
 
@@ -70,6 +71,7 @@ fn robot_tag(slot: usize, body: usize, role: ColliderRole) -> u128 {
         ColliderRole::Trunk => 0,
         ColliderRole::Penalised => 1,
         ColliderRole::Other => 2,
+        ColliderRole::Head => 3,
         ColliderRole::Foot(f) => 8 + f as u128,
     };
     ((slot as u128) << 32) | ((body as u128) << 8) | role_code
@@ -86,7 +88,7 @@ struct RobotHandles {
 pub struct RobotPhysicalParams {
     /// Actuator parameters.
     pub actuator: ActuatorParams,
-    /// Rotor inertia added about each joint axis (kg m^2).
+    /// Rotor inertia reflected on each joint coordinate (kg m^2).
     pub armature: f32,
     /// Extra mass on the trunk (kg).
     pub payload: f32,
@@ -253,6 +255,9 @@ impl RobotWorld {
                 self.colliders
                     .insert_with_parent(collider, h, &mut self.bodies);
             }
+            // Mass properties now rather than at the first step: a reset reads the centre of
+            // mass, and so do the inertia queries.
+            self.bodies[h].recompute_mass_properties_from_colliders(&self.colliders);
             handles.push(h);
         }
         for joint in &model.joints {
@@ -287,6 +292,7 @@ impl RobotWorld {
                 body_mass_properties(model, b, params, self.min_link_inertia),
                 true,
             );
+            rb.recompute_mass_properties_from_colliders(&self.colliders);
             for &ch in rb.colliders() {
                 if let Some(c) = self.colliders.get_mut(ch) {
                     c.set_friction(params.friction);
@@ -447,6 +453,7 @@ impl RobotWorld {
             let Some(s) = out.get_mut(slot) else { continue };
             match tag & 0xff {
                 0 => s.trunk_force += force,
+                3 => s.head_force += force,
                 1 => {
                     // Count each penalised body once (a body may have several colliders).
                     if force > CONTACT_FORCE_THRESHOLD && s.penalised_bodies & (1 << body) == 0 {
@@ -466,7 +473,10 @@ impl RobotWorld {
                 s.q[j].min(ahead) < joint.sim_lower + reach
                     || s.q[j].max(ahead) > joint.sim_upper - reach
             });
-            let hard = s.penalised_contacts + s.other_contacts > 0 || at_limit;
+            // A robot resting on its head is as hard to solve as one lying on its legs.
+            let hard = s.penalised_contacts + s.other_contacts > 0
+                || s.head_force > CONTACT_FORCE_THRESHOLD
+                || at_limit;
             s.extra_iterations = hard;
             if self.extra_iterations[slot] != hard {
                 self.extra_iterations[slot] = hard;
@@ -502,6 +512,53 @@ impl RobotWorld {
             .collect()
     }
 
+    /// Rotational inertia (kg m^2) of robot `slot` taken as rigid, about the world axis `axis`
+    /// (unit) through its centre of mass: what the robot feels when it turns as a whole
+    /// (armature included, as the links carry it).
+    pub fn whole_body_inertia(&self, slot: usize, axis: Vec3) -> f32 {
+        let bodies: Vec<usize> = (0..self.robots[slot].bodies.len()).collect();
+        let (mut mass, mut moment) = (0.0, Vec3::ZERO);
+        for &b in &bodies {
+            let (m, c) = self.body_mass(slot, b);
+            mass += m;
+            moment += c * m;
+        }
+        let com = moment / mass.max(f32::EPSILON);
+        self.inertia_about(slot, &bodies, com, axis)
+    }
+
+    /// Mass (kg) and world centre of mass of body `b` of robot `slot`, as simulated.
+    pub fn body_mass(&self, slot: usize, b: usize) -> (f32, Vec3) {
+        let rb = &self.bodies[self.robots[slot].bodies[b]];
+        (rb.mass(), rb.center_of_mass())
+    }
+
+    /// Rotational inertia (kg m^2) of bodies `bodies` of robot `slot`, as simulated (the inertia
+    /// floor and armature included), about the world axis `axis` (unit) through `point`.
+    pub fn inertia_about(&self, slot: usize, bodies: &[usize], point: Vec3, axis: Vec3) -> f32 {
+        bodies
+            .iter()
+            .map(|&b| {
+                let rb = &self.bodies[self.robots[slot].bodies[b]];
+                let local_axis = rb.rotation().inverse() * axis;
+                let inertia = rb
+                    .mass_properties()
+                    .local_mprops
+                    .reconstruct_inertia_matrix();
+                let arm = axis.cross(rb.center_of_mass() - point);
+                local_axis.dot(inertia * local_axis) + rb.mass() * arm.length_squared()
+            })
+            .sum()
+    }
+
+    /// Lock `axes` of robot `slot`'s trunk (test hook: a joint's response with the trunk held,
+    /// a stance held upright).
+    #[doc(hidden)]
+    pub fn lock_trunk(&mut self, slot: usize, axes: LockedAxes) {
+        let h = self.robots[slot].bodies[0];
+        self.bodies[h].set_locked_axes(axes, true);
+    }
+
     /// Poison robot `slot` with a NaN velocity (test hook for the non-finite guard).
     #[doc(hidden)]
     pub fn poison(&mut self, slot: usize) {
@@ -513,7 +570,7 @@ impl RobotWorld {
 /// Stiffness (N m/rad) and damping (N m s/rad) of the joint stops. Rapier's limit constraint
 /// only engages once a joint is past its limit and, with our first solver setting (4 substeps),
 /// let fast joints overshoot by up to 0.16 rad; this explicit spring backs it up (stable:
-/// k dt^2 / I < 0.2 with armature).
+/// k dt^2 / I < 0.2 with armature; stiffer springs, 1500-2500, made whipped legs overshoot more).
 const LIMIT_STIFFNESS: f32 = 500.0;
 const LIMIT_DAMPING: f32 = 5.0;
 
@@ -540,7 +597,16 @@ const LIMIT_LOOKAHEAD_S: f32 = 0.02;
 pub const CONTACT_FORCE_THRESHOLD: f32 = 0.1;
 
 /// Mass properties of body `b` of `model` with `params` applied: payload and CoM shift on the
-/// trunk, rotor inertia about the joint axis on every other body.
+/// trunk, the inertia floor and the armature on every leg link.
+///
+/// Armature is rotor inertia reflected on the joint coordinate (Isaac Gym and MuJoCo add it to
+/// the joint-space mass matrix only). Impulse joints have no joint space, so it is added to the
+/// child link's inertia about the joint axis: exact for a joint whose parent holds still, but
+/// the whole robot also becomes harder to turn (pitch +0.16, roll +0.08 kg m^2 at 0.02, see
+/// the physics tests). A joint motor pulling each joint towards its starting speed (an
+/// implicit armature on the joint alone) was measured and rejected: as a stiff row for PGS it
+/// kept loaded robots from converging (standing 19 mm low at 3 PGS iterations, creeping 5 mm
+/// per 5 s even at 8), README design notes.
 fn body_mass_properties(
     model: &RobotModel,
     b: usize,
@@ -560,9 +626,8 @@ fn body_mass_properties(
             let column = inertia.col_mut(i);
             column[i] = column[i].max(min_inertia);
         }
-        // A rotor spinning about the joint axis adds its inertia about that axis (armature).
         let a = model.joints[j].axis;
         inertia += Mat3::from_cols(a * a.x, a * a.y, a * a.z) * params.armature;
     }
-    MassProperties::with_inertia_matrix(com, mass, inertia)
+    mass_properties(com, mass, inertia)
 }

@@ -18,6 +18,10 @@ pub struct RobotConfig {
     pub foot_names: Vec<String>,
     /// The trunk link: its contact with the terrain terminates an episode.
     pub trunk_link: String,
+    /// Names of the head's collision elements: their terrain contact is reported, neither
+    /// terminating nor penalised (the paper's simulator keeps the head a separate body that
+    /// neither its termination nor its penalty list names).
+    pub head_colliders: Vec<String>,
     /// Substrings of link names whose terrain contact is penalised (legged_gym `penalize_contacts_on`).
     pub penalised_links: Vec<String>,
     /// Joint angles at action zero (rad), in `joint_names` order.
@@ -48,6 +52,7 @@ impl Default for RobotConfig {
                 .collect(),
             foot_names: legs.iter().map(|l| format!("{l}_foot")).collect(),
             trunk_link: "base".into(),
+            head_colliders: vec!["base_head_upper".into(), "base_head_lower".into()],
             penalised_links: vec!["thigh".into(), "calf".into()],
             default_joint_pos: vec![
                 0.1, 0.8, -1.5, // FL

@@ -17,8 +17,14 @@ pub const SIM_ANGLE_BOUND: f32 = std::f32::consts::PI - 0.5;
 /// What a collider's contact with the terrain means to the task.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum ColliderRole {
-    /// Part of the trunk (incl. head): contact terminates the episode.
+    /// Part of the trunk: contact terminates the episode.
     Trunk,
+    /// The head (Unitree's Head_upper and Head_lower). In the paper's simulator the head stays a
+    /// body of its own (`dont_collapse`) that neither legged_gym's termination ("base") nor its
+    /// penalty ("thigh", "calf") names: its contact neither ends the episode nor costs reward,
+    /// so a robot starting nose-down can rest on its head and push up onto its front legs. It
+    /// is reported (head hits are the paper's failure on biped stairs).
+    Head,
     /// A penalised link (thigh, calf): contact costs a collision penalty.
     Penalised,
     /// A foot (index in leg order).
@@ -207,6 +213,8 @@ impl RobotModel {
                     let role = if let Some(f) = config.foot_names.iter().position(|n| *n == g.name)
                     {
                         ColliderRole::Foot(f as u8)
+                    } else if config.head_colliders.contains(&g.name) {
+                        ColliderRole::Head
                     } else if b == 0 {
                         ColliderRole::Trunk
                     } else if config
@@ -231,6 +239,16 @@ impl RobotModel {
                 inertial: l.inertial,
                 colliders,
             });
+        }
+        for name in &config.head_colliders {
+            let found = bodies.iter().any(|body| {
+                body.colliders
+                    .iter()
+                    .any(|c| c.geometry.name == *name && c.role == ColliderRole::Head)
+            });
+            if !found {
+                return Err(err(format!("no head collision element named `{name}`")));
+            }
         }
         for name in &config.foot_names {
             let found = bodies.iter().enumerate().find_map(|(b, body)| {

@@ -115,63 +115,65 @@ pub const LABELS: [Field; 4] = [
     },
 ];
 
-/// The privileged critic extras s_t: the env's randomised physical values (10).
+/// The privileged critic extras s_t: the env's randomised physical values (10), each mapped
+/// linearly from its Table V range to [-1, 1] so that a network sees them on one scale (raw, a
+/// CoM offset spans +-0.01 m and a joint friction 0.005-0.01 next to a payload of +-1 kg).
 pub const PRIVILEGED: [Field; 8] = [
     Field {
         name: "friction",
         dim: 1,
         scale: &[1.0],
         noise: 0.0,
-        doc: "robot-terrain friction coefficient",
+        doc: "robot-terrain friction coefficient, mapped to [-1, 1] over its randomisation range",
     },
     Field {
         name: "payload",
         dim: 1,
         scale: &[1.0],
         noise: 0.0,
-        doc: "payload on the trunk (kg)",
+        doc: "payload on the trunk (kg), mapped to [-1, 1] over its randomisation range",
     },
     Field {
         name: "com_offset",
         dim: 3,
         scale: &[1.0; 3],
         noise: 0.0,
-        doc: "trunk centre-of-mass shift (m)",
+        doc: "trunk centre-of-mass shift (m), mapped to [-1, 1] over its randomisation range",
     },
     Field {
         name: "joint_damping",
         dim: 1,
         scale: &[1.0],
         noise: 0.0,
-        doc: "joint viscous damping (N m s/rad)",
+        doc: "joint viscous damping (N m s/rad), mapped to [-1, 1] over its randomisation range",
     },
     Field {
         name: "joint_friction",
         dim: 1,
         scale: &[1.0],
         noise: 0.0,
-        doc: "joint Coulomb friction (N m)",
+        doc: "joint Coulomb friction (N m), mapped to [-1, 1] over its randomisation range",
     },
     Field {
         name: "armature",
         dim: 1,
         scale: &[1.0],
         noise: 0.0,
-        doc: "rotor inertia per joint (kg m^2)",
+        doc: "rotor inertia per joint (kg m^2), mapped to [-1, 1] over its randomisation range",
     },
     Field {
         name: "kp_factor",
         dim: 1,
         scale: &[1.0],
         noise: 0.0,
-        doc: "factor on kp",
+        doc: "factor on kp, mapped to [-1, 1] over its randomisation range",
     },
     Field {
         name: "kd_factor",
         dim: 1,
         scale: &[1.0],
         noise: 0.0,
-        doc: "factor on kd",
+        doc: "factor on kd, mapped to [-1, 1] over its randomisation range",
     },
 ];
 

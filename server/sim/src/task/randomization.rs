@@ -37,6 +37,16 @@ pub fn uniform(rng: &mut impl Rng, r: Range) -> f32 {
     }
 }
 
+/// `value` mapped linearly from `range` to [-1, 1]; 0 for a range of zero width.
+pub fn unit_scale(value: f32, range: Range) -> f32 {
+    let width = range[1] - range[0];
+    if width > 0.0 {
+        2.0 * (value - range[0]) / width - 1.0
+    } else {
+        0.0
+    }
+}
+
 impl Randomization {
     /// The robot's nominal values (randomisation off).
     pub fn nominal(robot: &RobotConfig) -> Self {
@@ -89,19 +99,25 @@ impl Randomization {
         }
     }
 
-    /// The privileged vector s_t, in [`super::observation::PRIVILEGED`] order.
-    pub fn privileged(&self) -> [f32; super::observation::PRIVILEGED_DIM] {
+    /// The privileged vector s_t, in [`super::observation::PRIVILEGED`] order, each value
+    /// mapped from its range in `ranges` to [-1, 1] (the middle of a range is 0; a range of
+    /// zero width gives 0).
+    pub fn privileged(
+        &self,
+        ranges: &RandomizationParams,
+    ) -> [f32; super::observation::PRIVILEGED_DIM] {
+        let r = ranges;
         [
-            self.friction,
-            self.payload,
-            self.com_offset.x,
-            self.com_offset.y,
-            self.com_offset.z,
-            self.joint_damping,
-            self.joint_friction,
-            self.armature,
-            self.kp_factor,
-            self.kd_factor,
+            unit_scale(self.friction, r.friction),
+            unit_scale(self.payload, r.payload),
+            unit_scale(self.com_offset.x, r.com_offset),
+            unit_scale(self.com_offset.y, r.com_offset),
+            unit_scale(self.com_offset.z, r.com_offset),
+            unit_scale(self.joint_damping, r.joint_damping),
+            unit_scale(self.joint_friction, r.joint_friction),
+            unit_scale(self.armature, r.armature),
+            unit_scale(self.kp_factor, r.kp_factor),
+            unit_scale(self.kd_factor, r.kd_factor),
         ]
     }
 }
