@@ -32,6 +32,8 @@ def test_round_trip_and_spec_slices(server):
             assert spec.num_actions == 12 and spec.max_episode_steps == 900
             assert spec.policy_dt == pytest.approx(0.02)
             assert s.initial.obs.shape == (8, 53)
+            # A unary step first: once the session has a step stream, steps go there.
+            assert s.step_unary(np.zeros((8, 12), np.float32)).step_count == 1
             rng = np.random.default_rng(0)
             for _ in range(3):
                 r = s.step(rng.uniform(-1, 1, (8, 12)).astype(np.float32))
@@ -43,7 +45,6 @@ def test_round_trip_and_spec_slices(server):
             one_hot = r.obs[:, spec.obs.slice("mode")]
             np.testing.assert_array_equal(np.argmax(one_hot, axis=1) + 1, r.mode)
             assert np.abs(r.obs[:, spec.obs.slice("clock")]).max() <= 1.0 + 1e-6
-            r = s.step_unary(np.zeros((8, 12), np.float32))
             assert r.step_count == 4
             mask = np.zeros(8, bool)
             mask[2] = True

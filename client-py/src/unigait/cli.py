@@ -5,12 +5,25 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import os
 import sys
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
-from unigait.client import Client, SessionConfig, UnigaitError
+from unigait.client import (
+    Client,
+    ConnectionOptions,
+    SessionConfig,
+    UnigaitError,
+    load_connection_options,
+    open_session,
+)
+from unigait.mujoco import cli as mujoco_cli
 from unigait.server_process import LocalServer
+
+# Idle OpenMP threads sleep instead of spinning: the learner's torch threads share the cores with
+# the simulation server. Set before torch is imported (the commands import it lazily).
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 QUAD_ONLY_TOML = "[modes]\nbiped_probability = 0.0\n"
 
@@ -26,6 +39,26 @@ def _servers(addresses: Sequence[str], server_bin: str = "") -> Iterator[list[st
     with server:
         print(f"local server listening on {server.address}", file=sys.stderr)
         yield [server.address]
+
+
+def _add_connection_flags(parser: argparse.ArgumentParser) -> None:
+    """``--tls-ca`` and ``--token-file``: reaching servers beyond loopback (TLS + token)."""
+    parser.add_argument(
+        "--tls-ca",
+        metavar="FILE",
+        help="PEM CA certificate of the servers: connect with TLS (https://HOST:PORT addresses "
+        "use TLS with the system roots without it)",
+    )
+    parser.add_argument(
+        "--token-file",
+        metavar="FILE",
+        help="file holding the servers' bearer token (default: $UNIGAIT_TOKEN if set)",
+    )
+
+
+def _connection(args: argparse.Namespace) -> ConnectionOptions:
+    """Client keyword arguments from ``--tls-ca``, ``--token-file`` and ``$UNIGAIT_TOKEN``."""
+    return load_connection_options(args.tls_ca, args.token_file)
 
 
 def _train(args: argparse.Namespace) -> int:
@@ -48,6 +81,10 @@ def _train(args: argparse.Namespace) -> int:
         overrides.append("runner.quiet=true")
     if args.server:
         overrides.append(f"env.servers={json.dumps(args.server)}")
+    if args.preset:
+        from unigait import presets
+
+        overrides = presets.overrides_of(args.preset) + overrides
     cfg = load_config(args.config, overrides)
     if args.quad_only:
         from dataclasses import replace
@@ -68,13 +105,29 @@ def _train(args: argparse.Namespace) -> int:
         terrain_level=cfg.env.terrain_level,
         reward_terms=True,
     )
+    if args.ray is not None:  # servers as Ray actors, lost ones replaced: unigait.ray
+        from unigait.ray import train_on_ray
+
+        train_on_ray(
+            cfg,
+            address=args.ray,
+            num_servers=args.servers,
+            cpus_per_server=args.cpus_per_server,
+            resume=args.resume,
+            init_from=args.init_from,
+        )
+        return 0
     with _servers(cfg.env.servers, cfg.env.server_bin) as addresses:
-        env = TorchVecEnv.connect(addresses, session_cfg, cfg.runner.device)
+        session = open_session(addresses, session_cfg, **_connection(args))
+        env = TorchVecEnv(session, cfg.runner.device)
         try:
             runner = OnPolicyRunner(env, cfg, log_dir)
             if args.resume:
                 runner.load(args.resume)
                 print(f"resumed from {args.resume} at iteration {runner.iteration}")
+            elif args.init_from:
+                runner.load_weights(args.init_from)
+                print(f"networks initialised from {args.init_from}")
             remaining = max(cfg.runner.max_iterations - runner.iteration, 0)
             print(
                 f"training {env.num_envs} envs x {cfg.runner.num_steps_per_env} steps on "
@@ -112,7 +165,8 @@ def _export(args: argparse.Namespace) -> int:
 def _evaluate(args: argparse.Namespace) -> int:
     policy = Path(args.policy).read_bytes()
     biped = Path(args.biped_policy).read_bytes() if args.biped_policy else b""
-    with _servers(args.server or []) as addresses, Client(addresses[0]) as client:
+    connection = _connection(args)
+    with _servers(args.server or []) as addresses, Client(addresses[0], **connection) as client:
         result = client.evaluate(
             policy,
             args.scenario,
@@ -130,10 +184,59 @@ def _evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _ship(args: argparse.Namespace) -> int:
+    from unigait.ship import ship
+
+    with _servers(args.server or []) as addresses:
+        folder = ship(
+            Path(args.run_dir),
+            args.name,
+            args.preset,
+            addresses,
+            out_root=Path(args.out_root),
+            checkpoint_path=Path(args.checkpoint) if args.checkpoint else None,
+            eval_seed=args.eval_seed,
+            num_envs=args.num_envs,
+        )
+    print((folder / "MODEL_CARD.md").read_text())
+    print(f"shipped to {folder}")
+    return 0
+
+
+def _compare(args: argparse.Namespace) -> int:
+    import torch
+
+    from unigait.compare import run_ours, run_rsl_rl, write
+
+    torch.set_num_threads(1)
+    runs: dict[str, list[dict[str, float]]] = {}
+    with _servers(args.server or []) as addresses:
+        for name in args.learners:
+            print(f"training with {name}: {args.num_envs} envs, {args.iterations} iterations")
+            if name == "ours":
+                runs[name] = run_ours(addresses[0], args.num_envs, args.iterations, args.seed)
+            else:
+                runs[name] = run_rsl_rl(
+                    addresses[0],
+                    args.num_envs,
+                    args.iterations,
+                    args.seed,
+                    obs_normalization=name == "rsl_rl_normalized",
+                )
+    write(Path(args.out), runs)
+    for name, rows in runs.items():
+        last = rows[-10:]
+        mean = sum(r["tracking"] for r in last) / max(len(last), 1)
+        print(f"{name:>18}: quad tracking per step over the last {len(last)} iterations {mean:.4f}")
+    print(f"wrote {args.out}/compare.csv and {args.out}/compare.png")
+    return 0
+
+
 def _info(args: argparse.Namespace) -> int:
+    connection = _connection(args)
     with _servers(args.server or []) as addresses:
         for address in addresses:
-            with Client(address) as client:
+            with Client(address, **connection) as client:
                 print(address, client.server_info())
     return 0
 
@@ -157,12 +260,33 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="HOST:PORT",
         help="server address, repeatable (shards the envs); none: start a local one",
     )
+    _add_connection_flags(t)
+    t.add_argument(
+        "--ray",
+        nargs="?",
+        const="",
+        metavar="ADDRESS",
+        help="start the servers as Ray actors (cluster ADDRESS, e.g. auto; none: ray.init())",
+    )
+    t.add_argument("--servers", type=int, default=1, help="with --ray: server actors")
+    t.add_argument("--cpus-per-server", type=int, default=1, help="with --ray: CPUs per actor")
     t.add_argument("--num-envs", type=int)
     t.add_argument("--iterations", type=int, help="total iterations (runner.max_iterations)")
     t.add_argument("--log-dir")
     t.add_argument("--seed", type=int)
     t.add_argument("--resume", metavar="CHECKPOINT", help="continue from a model_*.pt")
     t.add_argument("--quad-only", action="store_true", help="biped_probability = 0")
+    t.add_argument(
+        "--preset",
+        metavar="NAME",
+        help="start from a preset (quad_flat, unified_flat, unified_terrain); "
+        "--config and --set apply on top",
+    )
+    t.add_argument(
+        "--init-from",
+        metavar="CHECKPOINT",
+        help="staged training: take the networks (not the optimiser or counters) of a model_*.pt",
+    )
     t.add_argument("--quiet", action="store_true", help="one line per iteration")
     t.set_defaults(func=_train)
 
@@ -176,6 +300,7 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--policy", required=True, help="ONNX file")
     v.add_argument("--scenario", required=True, help="e.g. stairs_up_quad")
     v.add_argument("--server", action="append", metavar="HOST:PORT")
+    _add_connection_flags(v)
     v.add_argument("--num-envs", type=int, default=0)
     v.add_argument("--seed", type=int, default=0)
     v.add_argument("--biped-policy", help="second ONNX policy for the two-policy baseline")
@@ -183,9 +308,37 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--report", metavar="OUT.json", help="write the full JSON report")
     v.set_defaults(func=_evaluate)
 
+    s = sub.add_parser("ship", help="export, evaluate and document a trained policy")
+    s.add_argument("--run-dir", required=True, help="training output (model_latest.pt, curves)")
+    s.add_argument("--name", required=True, help="folder under --out-root")
+    s.add_argument("--preset", required=True, help="the preset it was trained with")
+    s.add_argument("--checkpoint", help="a model_*.pt instead of model_latest.pt")
+    s.add_argument("--out-root", default="assets/policies")
+    s.add_argument("--server", action="append", metavar="HOST:PORT")
+    s.add_argument("--eval-seed", type=int, default=1000, help="a seed training never used")
+    s.add_argument("--num-envs", type=int, default=64)
+    s.set_defaults(func=_ship)
+
+    c = sub.add_parser("compare-rsl-rl", help="our learner vs rsl_rl's runner, quad on flat")
+    c.add_argument("--server", action="append", metavar="HOST:PORT")
+    c.add_argument("--num-envs", type=int, default=256)
+    c.add_argument("--iterations", type=int, default=100)
+    c.add_argument("--seed", type=int, default=1)
+    c.add_argument(
+        "--learners",
+        nargs="+",
+        default=["ours", "rsl_rl"],
+        choices=["ours", "rsl_rl", "rsl_rl_normalized"],
+    )
+    c.add_argument("--out", default="runs/compare")
+    c.set_defaults(func=_compare)
+
     i = sub.add_parser("info", help="print server info")
     i.add_argument("--server", action="append", metavar="HOST:PORT")
+    _add_connection_flags(i)
     i.set_defaults(func=_info)
+
+    mujoco_cli.register(sub)  # sim2sim, crosscheck (MuJoCo imported only when they run)
     return p
 
 

@@ -6,6 +6,7 @@ Example:
     ...     clock = s.initial.obs[:, s.spec.obs.slice("clock")]  # f32 [64, 4]
 """
 
+from unigait.client.connection import ConnectionOptions, load_connection_options, parse_address
 from unigait.client.errors import ProtocolError, UnigaitError
 from unigait.client.session import DEFAULT_MAX_MESSAGE_BYTES, Client, Session
 from unigait.client.sharded import SessionLike, ShardedSession, open_session, split_envs
@@ -15,6 +16,7 @@ from unigait.client.types import EvaluateResult, ServerInfo, SessionConfig, Step
 __all__ = [
     "DEFAULT_MAX_MESSAGE_BYTES",
     "Client",
+    "ConnectionOptions",
     "EvaluateResult",
     "FieldSpec",
     "ProtocolError",
@@ -27,6 +29,8 @@ __all__ = [
     "StepResult",
     "TensorSpec",
     "UnigaitError",
+    "load_connection_options",
     "open_session",
+    "parse_address",
     "split_envs",
 ]

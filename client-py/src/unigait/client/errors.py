@@ -9,6 +9,12 @@ import grpc
 
 T = TypeVar("T")
 
+#: Appended to the server's message when it refuses a call for want of the right token.
+UNAUTHENTICATED_HINT = (
+    "the server wants its bearer token: Client(..., token=...), open_session(..., token=...), "
+    "or on the command line --token-file FILE or $UNIGAIT_TOKEN"
+)
+
 
 class UnigaitError(Exception):
     """A failed call to the server, carrying the gRPC status.
@@ -30,6 +36,8 @@ class UnigaitError(Exception):
         """Build from a grpc error (a ``grpc.Call`` in practice)."""
         code = err.code() if isinstance(err, grpc.Call) else grpc.StatusCode.UNKNOWN
         details = (err.details() if isinstance(err, grpc.Call) else None) or str(err)
+        if code == grpc.StatusCode.UNAUTHENTICATED:
+            details += f" ({UNAUTHENTICATED_HINT})"
         return cls(code, details)
 
 

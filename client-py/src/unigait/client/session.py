@@ -10,6 +10,7 @@ import grpc
 import numpy as np
 
 from unigait.client.closing import ClosesOnExit
+from unigait.client.connection import ConnectionOptions, make_channel
 from unigait.client.errors import ProtocolError, UnigaitError, call
 from unigait.client.proto import pb, pb_grpc
 from unigait.client.spec import Spec
@@ -23,22 +24,54 @@ DEFAULT_MAX_MESSAGE_BYTES = 256 * 1024 * 1024
 class Client(ClosesOnExit):
     """A channel to one ``unigait`` server.
 
+    Plaintext by default (a server on loopback); TLS for ``https://`` addresses or when
+    ``root_certificates`` are given, as a server started with ``--allow-remote --tls-cert
+    --tls-key --token-file`` requires, with the ``token`` sent as ``authorization: Bearer
+    <token>`` on every call (see :mod:`unigait.client.connection`).
+
     Args:
-        address: ``host:port``, e.g. ``"127.0.0.1:50051"``.
+        address: ``host:port`` (e.g. ``"127.0.0.1:50051"``), ``https://host:port`` (TLS) or
+            ``http://host:port`` (plaintext).
+        root_certificates: PEM CA bundle that signed the server's certificate (TLS); None with
+            an ``https://`` address: the system roots.
+        token: Bearer token of the server (``--token-file`` on its side). Sent over TLS, or in
+            plaintext only to a loopback host.
+        tls_server_name: Certificate name to verify when it differs from the address's host.
         max_message_bytes: Send and receive limit of the channel.
         connect_timeout_s: Wait this long for the channel to come up (None: do not wait).
+
+    Attributes:
+        address: The address as given.
+        tls: Whether the channel uses TLS.
+
+    Raises:
+        ValueError: Contradicting options, or a token that would cross the network in plaintext.
+        UnigaitError: UNAVAILABLE when no server answered within ``connect_timeout_s`` (also
+            what a TLS/plaintext mismatch or an untrusted certificate looks like).
     """
 
     def __init__(
         self,
         address: str,
         *,
+        root_certificates: bytes | None = None,
+        token: str | None = None,
+        tls_server_name: str | None = None,
         max_message_bytes: int = DEFAULT_MAX_MESSAGE_BYTES,
         connect_timeout_s: float | None = 10.0,
     ) -> None:
         self.address = address
-        self.channel = grpc.insecure_channel(
+        self._connection: ConnectionOptions = {
+            "root_certificates": root_certificates,
+            "token": token,
+            "tls_server_name": tls_server_name,
+        }
+        self._max_message_bytes = max_message_bytes
+        self.channel, self.tls = make_channel(
             address,
+            root_certificates=root_certificates,
+            token=token,
+            tls_server_name=tls_server_name,
             options=[
                 ("grpc.max_send_message_length", max_message_bytes),
                 ("grpc.max_receive_message_length", max_message_bytes),
@@ -50,10 +83,31 @@ class Client(ClosesOnExit):
                 grpc.channel_ready_future(self.channel).result(timeout=connect_timeout_s)
             except grpc.FutureTimeoutError:
                 self.channel.close()
+                hint = (
+                    "is its certificate signed by the given CA (root_certificates, --tls-ca) "
+                    "and issued for this host name, and does it serve TLS at all?"
+                    if self.tls
+                    else "if it serves TLS, use https://HOST:PORT or root_certificates (--tls-ca)"
+                )
                 raise UnigaitError(
                     grpc.StatusCode.UNAVAILABLE,
-                    f"no unigait server answered at {address} within {connect_timeout_s} s",
+                    f"no unigait server answered at {address} within {connect_timeout_s} s "
+                    f"({'TLS' if self.tls else 'plaintext'}; {hint})",
                 ) from None
+
+    def connect_to(self, address: str, *, connect_timeout_s: float | None = 10.0) -> Client:
+        """A new client for another server with this one's credentials and limits.
+
+        Args:
+            address: The other server (e.g. the replacement of a lost one).
+            connect_timeout_s: Wait this long for its channel (None: do not wait).
+        """
+        return Client(
+            address,
+            **self._connection,
+            max_message_bytes=self._max_message_bytes,
+            connect_timeout_s=connect_timeout_s,
+        )
 
     def server_info(self) -> ServerInfo:
         """Server version, protocol version and limits."""

@@ -1,0 +1,161 @@
+"""The learner on Ray: PPO over a :class:`ServerPool`, carrying on when a server is lost.
+
+The learner runs in the Ray driver (one process: rollouts, PPO and estimator updates); the
+simulation runs in the pool's server actors. Python API::
+
+    from unigait.config import load_config
+    from unigait.ray import train_on_ray
+
+    train_on_ray(load_config(None, ["env.num_envs=4096"]), address="auto", num_servers=8,
+                 cpus_per_server=4)
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from unigait.client.types import SessionConfig
+from unigait.config import TrainConfig
+from unigait.env import TorchVecEnv
+from unigait.ray.pool import ServerPool, ship_binary_env
+from unigait.runners import OnPolicyRunner
+
+log = logging.getLogger(__name__)
+
+
+class ResilientRunner(OnPolicyRunner):
+    """:class:`OnPolicyRunner` that also logs ``server_restarts``.
+
+    ``server_restarts`` is the number of shard sessions recreated since the start because their
+    server was lost (cumulative; a column of ``progress.csv``).
+    """
+
+    def rollout(self) -> dict[str, float]:
+        """See :meth:`OnPolicyRunner.rollout`; adds ``server_restarts``."""
+        out = super().rollout()
+        out["server_restarts"] = float(getattr(self.env.session, "server_restarts", 0))
+        return out
+
+
+def session_config(cfg: TrainConfig) -> SessionConfig:
+    """The session config of a training run (reward terms on: the logger needs them)."""
+    return SessionConfig(
+        num_envs=cfg.env.num_envs,
+        seed=cfg.env.seed,
+        task_overrides_toml=cfg.env.task_overrides_toml,
+        terrain=cfg.env.terrain,
+        terrain_level=cfg.env.terrain_level,
+        reward_terms=True,
+    )
+
+
+def train_with_pool(
+    pool: ServerPool,
+    cfg: TrainConfig,
+    *,
+    resume: str | Path | None = None,
+    init_from: str | Path | None = None,
+) -> list[dict[str, float]]:
+    """Train ``cfg.runner.max_iterations`` (minus a resumed checkpoint's) over a started pool.
+
+    Args:
+        pool: Started servers; the batch is sharded over them, lost ones are replaced.
+        cfg: The training config (``env.servers`` is ignored).
+        resume: A checkpoint to continue from.
+        init_from: A checkpoint whose networks (only) start the run (staged training).
+
+    Returns:
+        The logged scalars of each iteration.
+    """
+    torch.manual_seed(cfg.runner.seed)
+    if cfg.runner.torch_threads > 0:
+        torch.set_num_threads(cfg.runner.torch_threads)
+    log_dir = Path(cfg.runner.log_dir)
+    log_dir.mkdir(parents=True, exist_ok=True)
+    (log_dir / "config.toml").write_text(cfg.to_toml())
+    env = TorchVecEnv(pool.open_session(session_config(cfg)), cfg.runner.device)
+    try:
+        runner = ResilientRunner(env, cfg, log_dir)
+        if resume:
+            runner.load(resume)
+            print(f"resumed from {resume} at iteration {runner.iteration}")
+        elif init_from:
+            runner.load_weights(init_from)
+            print(f"networks initialised from {init_from}")
+        remaining = max(cfg.runner.max_iterations - runner.iteration, 0)
+        print(
+            f"training {env.num_envs} envs x {cfg.runner.num_steps_per_env} steps on "
+            f"{pool.num_servers} Ray server actor(s) ({pool.cpus_per_server} CPU each: "
+            f"{', '.join(pool.addresses)}) for {remaining} iterations; output in {log_dir}"
+        )
+        return runner.learn(remaining)
+    finally:
+        env.close()
+
+
+def train_on_ray(
+    cfg: TrainConfig,
+    *,
+    address: str | None = None,
+    num_servers: int = 1,
+    cpus_per_server: int = 1,
+    resume: str | Path | None = None,
+    init_from: str | Path | None = None,
+    ship_binary: str | Path | None = None,
+    pool_options: dict[str, Any] | None = None,
+) -> list[dict[str, float]]:
+    """Start a server pool on a Ray cluster, train over it, shut it down.
+
+    Args:
+        cfg: The training config; ``env.server_bin``, if set, is the binary's path on the nodes.
+        address: Ray address (``"auto"``, ``"HOST:6379"``); None or "": ``ray.init()``'s own
+            choice (``$RAY_ADDRESS``, the latest local cluster, else a new local instance). An
+            already connected driver is used as it is.
+        num_servers: Server actors (shards).
+        cpus_per_server: CPUs (and server threads) per actor.
+        resume: A checkpoint to continue from.
+        init_from: A checkpoint whose networks (only) start the run.
+        ship_binary: Upload this local server binary to the nodes with the job (see
+            :func:`unigait.ray.pool.ship_binary_env`); needs this call to connect to Ray.
+        pool_options: More :class:`ServerPool` arguments (``extra_args``, ``strategy``, ...).
+
+    Returns:
+        The logged scalars of each iteration.
+    """
+    import ray
+
+    if cfg.env.servers:
+        raise ValueError("train_on_ray starts its own servers: leave env.servers (--server) empty")
+    if not logging.getLogger().handlers:  # show lost servers and restarts
+        logging.basicConfig(stream=sys.stderr, format="%(name)s: %(message)s")
+    connected_here = not ray.is_initialized()
+    options = dict(pool_options or {})
+    if cfg.env.server_bin:
+        options.setdefault("binary", cfg.env.server_bin)
+    with tempfile.TemporaryDirectory(prefix="unigait-ship-") as staging:
+        runtime_env = None
+        if ship_binary is not None:
+            if not connected_here:
+                raise ValueError("ship_binary: the job's runtime env is set when Ray connects")
+            runtime_env, options["binary"] = ship_binary_env(ship_binary, staging)
+        if connected_here:
+            ray.init(address=address or None, runtime_env=runtime_env)
+    try:
+        with ServerPool(num_servers, cpus_per_server, **options) as pool:
+            for m in pool.members:
+                print(f"server {m.index}: {m.address} on node {m.node_ip} ({m.node_id[:12]})")
+            history = train_with_pool(pool, cfg, resume=resume, init_from=init_from)
+            restarts = sum(pool.restarts)
+            if restarts:
+                print(f"servers restarted during the run: {json.dumps(pool.restarts)}")
+            return history
+    finally:
+        if connected_here:
+            ray.shutdown()

@@ -1,0 +1,246 @@
+"""Ship a trained policy: ``assets/policies/<name>/`` with everything a user needs to trust it.
+
+The folder holds ``policy.onnx`` (the fused estimator + actor the server runs), ``model.pt`` (the
+training checkpoint, to resume or stage from), ``training.png`` and ``progress.csv`` (the curves),
+``eval.json`` (the milestone scenarios, evaluated on seeds training never used) and
+``MODEL_CARD.md`` (preset, config, commit, env steps, wall time, machine, the milestone figures
+and how to reproduce them).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import platform
+import shutil
+import subprocess
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+#: Scenarios each preset's milestone is judged on.
+MILESTONE_SCENARIOS: dict[str, tuple[str, ...]] = {
+    "quad_flat": ("tracking_quad",),
+    "unified_flat": (
+        "tracking_quad",
+        "tracking_biped",
+        "transition_biped_to_quad",
+        "transition_quad_to_biped",
+    ),
+    "unified_terrain": (
+        "tracking_quad",
+        "tracking_biped",
+        "transition_biped_to_quad",
+        "transition_quad_to_biped",
+        "table_vi",
+    ),
+}
+
+
+@dataclass(frozen=True)
+class Check:
+    """One milestone criterion: ``metric`` of ``scenario`` compared with ``bound``."""
+
+    scenario: str
+    metric: str
+    op: str
+    bound: float
+    label: str
+
+    def passes(self, value: float | None) -> bool:
+        """Whether ``value`` meets the criterion (a missing value does not)."""
+        if value is None:
+            return False
+        return value <= self.bound if self.op == "<=" else value >= self.bound
+
+
+#: The milestones of the training issue (M1 quad on flat; M2 adds biped and transitions).
+M1: tuple[Check, ...] = (
+    Check("tracking_quad", "tracking/quad/lin_vel_error_mps", "<=", 0.15, "quad lin. vel. error"),
+    Check("tracking_quad", "tracking/quad/ang_vel_error_radps", "<=", 0.2, "quad yaw-rate error"),
+    Check(
+        "tracking_quad", "tracking/quad/termination_rate", "<=", 0.05, "quad episodes terminated"
+    ),
+)
+M2: tuple[Check, ...] = (
+    *M1,
+    Check("tracking_biped", "tracking/biped/upright_share", ">=", 0.9, "biped upright share"),
+    Check("tracking_biped", "tracking/biped/lin_vel_error_mps", "<=", 0.2, "biped lin. vel. error"),
+    Check("transition_biped_to_quad", "success_rate", ">=", 0.9, "biped -> quad success"),
+    Check("transition_quad_to_biped", "success_rate", ">=", 0.9, "quad -> biped success"),
+)
+MILESTONES: dict[str, tuple[str, tuple[Check, ...]]] = {
+    "quad_flat": ("M1", M1),
+    "unified_flat": ("M2", M2),
+    "unified_terrain": ("M2", M2),
+}
+
+
+def _git_commit(repo: Path) -> str:
+    try:
+        out = subprocess.run(
+            ["git", "-C", str(repo), "rev-parse", "--short", "HEAD"],
+            capture_output=True,
+            text=True,
+            check=True,
+        )
+        return out.stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+def _machine() -> str:
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"{os.cpu_count()} cores, {cpu}, no GPU (torch CPU)"
+
+
+def _progress(run_dir: Path) -> list[dict[str, str]]:
+    path = run_dir / "progress.csv"
+    if not path.exists():
+        return []
+    with path.open() as f:
+        return list(csv.DictReader(f))
+
+
+def _metric(evals: dict[str, dict[str, float]], check: Check) -> float | None:
+    value = evals.get(check.scenario, {}).get(check.metric)
+    return None if value is None else float(value)
+
+
+def model_card(
+    name: str,
+    preset: str,
+    checkpoint: dict[str, Any],
+    evals: dict[str, dict[str, float]],
+    rows: Sequence[dict[str, str]],
+    commit: str,
+    eval_seed: int,
+    num_envs: int,
+) -> str:
+    """The model card's Markdown text."""
+    steps = int(checkpoint.get("total_env_steps", 0))
+    iterations = int(checkpoint.get("iteration", 0))
+    wall_s = sum(float(r.get("iteration_time_s", 0.0) or 0.0) for r in rows)
+    milestone, checks = MILESTONES.get(preset, ("-", ()))
+    lines = [
+        f"# Policy `{name}`",
+        "",
+        f"- preset: `{preset}` (`python -m unigait train --preset {preset}`)",
+        f"- iterations: {iterations}; env steps: {steps:,}; training wall time: "
+        f"{wall_s / 3600:.2f} h",
+        f"- machine: {_machine()}",
+        f"- code: git commit `{commit}`",
+        "- networks: Table III (actor and critic [512, 256, 128], estimator [256, 128], ELU)",
+        f"- evaluated on seed {eval_seed} (training used seeds below 100), {num_envs} envs per "
+        "scenario",
+        "",
+        f"## Milestone {milestone}",
+        "",
+        "| criterion | scenario | metric | bound | value | met |",
+        "| --- | --- | --- | --- | --- | --- |",
+    ]
+    for c in checks:
+        v = _metric(evals, c)
+        shown = "n/a" if v is None else f"{v:.3f}"
+        lines.append(
+            f"| {c.label} | `{c.scenario}` | `{c.metric}` | {c.op} {c.bound} | {shown} | "
+            f"{'yes' if c.passes(v) else 'no'} |"
+        )
+    lines += [
+        "",
+        "## Reproduce",
+        "",
+        "```sh",
+        f"python -m unigait train --preset {preset} --log-dir runs/{name}",
+        f"python -m unigait ship --run-dir runs/{name} --name {name} --preset {preset}",
+        "```",
+        "",
+        "Training resumes from `model.pt` with `--resume`; a later stage starts from it with "
+        "`--init-from`.",
+        "",
+        "## Config",
+        "",
+        "```toml",
+        _config_toml(checkpoint),
+        "```",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def _config_toml(checkpoint: dict[str, Any]) -> str:
+    from unigait.config import TrainConfig, apply
+
+    return apply(TrainConfig(), checkpoint.get("config", {})).to_toml().strip()
+
+
+def ship(
+    run_dir: Path,
+    name: str,
+    preset: str,
+    addresses: Sequence[str],
+    out_root: Path = Path("assets/policies"),
+    checkpoint_path: Path | None = None,
+    eval_seed: int = 1000,
+    num_envs: int = 64,
+) -> Path:
+    """Export, evaluate and document the latest checkpoint of ``run_dir``.
+
+    Args:
+        run_dir: A training output directory (``model_latest.pt``, ``progress.csv``, PNG).
+        name: Folder name under ``out_root``.
+        preset: The preset it was trained with (picks the milestone scenarios).
+        addresses: Server(s) to evaluate on (the first is used).
+        out_root: Where policy folders live.
+        checkpoint_path: A specific checkpoint instead of ``model_latest.pt``.
+        eval_seed: Evaluation seed (not one training used).
+        num_envs: Envs per scenario.
+
+    Returns:
+        The policy folder.
+    """
+    import torch
+
+    from unigait.client import Client
+    from unigait.export import export_onnx, load_policy, max_abs_diff_to_torch
+
+    source = checkpoint_path or run_dir / "model_latest.pt"
+    folder = out_root / name
+    folder.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(source, folder / "model.pt")
+    for f in ("training.png", "progress.csv"):
+        if (run_dir / f).exists():
+            shutil.copyfile(run_dir / f, folder / f)
+    policy, dims = load_policy(source)
+    export_onnx(policy, folder / "policy.onnx", dims["history_length"], dims["obs_dim"])
+    diff = max_abs_diff_to_torch(policy, folder / "policy.onnx")
+    if diff > 1e-5:
+        raise RuntimeError(f"the exported graph differs from torch by {diff:.2e}")
+    onnx = (folder / "policy.onnx").read_bytes()
+    evals: dict[str, dict[str, float]] = {}
+    with Client(addresses[0]) as client:
+        for scenario in MILESTONE_SCENARIOS.get(preset, ("tracking_quad",)):
+            result = client.evaluate(onnx, scenario, num_envs=num_envs, seed=eval_seed)
+            evals[scenario] = dict(sorted(result.metrics.items()))
+    (folder / "eval.json").write_text(json.dumps(evals, indent=2) + "\n")
+    checkpoint = torch.load(source, map_location="cpu", weights_only=False)
+    card = model_card(
+        name,
+        preset,
+        checkpoint,
+        evals,
+        _progress(run_dir),
+        _git_commit(Path.cwd()),
+        eval_seed,
+        num_envs,
+    )
+    (folder / "MODEL_CARD.md").write_text(card)
+    return folder
