@@ -216,9 +216,13 @@ def ship(
     folder = out_root / name
     folder.mkdir(parents=True, exist_ok=True)
     shutil.copyfile(source, folder / "model.pt")
-    for f in ("training.png", "progress.csv"):
-        if (run_dir / f).exists():
-            shutil.copyfile(run_dir / f, folder / f)
+    for src, dst in (
+        ("training_curves.png", "training.png"),
+        ("training.png", "training.png"),
+        ("progress.csv", "progress.csv"),
+    ):
+        if (run_dir / src).exists():
+            shutil.copyfile(run_dir / src, folder / dst)
     policy, dims = load_policy(source)
     export_onnx(policy, folder / "policy.onnx", dims["history_length"], dims["obs_dim"])
     diff = max_abs_diff_to_torch(policy, folder / "policy.onnx")
