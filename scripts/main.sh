@@ -17,6 +17,11 @@ ensure_python_env viz
 export UNIGAIT_SERVER_BIN="$PWD/target/release/unigait-server"
 mkdir -p "$OUT"
 
+echo "== the shipped policy (assets/policies/quad_flat): velocity tracking on four legs, recorded"
+"$VENV/bin/python" -m unigait evaluate --policy assets/policies/quad_flat/policy.onnx \
+  --scenario tracking_quad --num-envs 16 --seed 1000 \
+  --report "$OUT/shipped_quad_flat_eval.json" --record "$OUT/shipped_quad_flat.rrd"
+
 echo "== training: $ITERATIONS iterations x $ENVS envs x 24 steps (PPO + concurrent estimator)"
 "$VENV/bin/python" -m unigait train --iterations "$ITERATIONS" --num-envs "$ENVS" --log-dir "$OUT" --quiet
 echo "== exporting the fused estimator + actor to ONNX"
@@ -26,6 +31,7 @@ echo "== evaluating on the server and recording a rollout"
   --num-envs 16 --report "$OUT/eval.json" --record "$OUT/rollout.rrd"
 
 echo
+echo "Shipped policy: $OUT/shipped_quad_flat_eval.json, $OUT/shipped_quad_flat.rrd"
 echo "Training curves: $OUT/training.png (scalars in $OUT/*.csv); evaluation: $OUT/eval.json"
 echo "Open the rollout with the rerun viewer (rerun-sdk 0.36, installed in the venv):"
 echo "  $VENV/bin/rerun $OUT/rollout.rrd"
