@@ -48,8 +48,17 @@ impl Client {
         } else {
             format!("{scheme}://{addr}")
         };
-        let mut endpoint =
-            Endpoint::from_shared(uri).map_err(|_| ClientError::Address(addr.into()))?;
+        if tls.is_none() && uri.starts_with("https://") {
+            return Err(ClientError::Address(format!(
+                "{addr}: an https address needs the server's CA certificate (--tls-ca)"
+            )));
+        }
+        let mut endpoint = Endpoint::from_shared(uri)
+            .map_err(|_| ClientError::Address(addr.into()))?
+            .http2_keep_alive_interval(std::time::Duration::from_secs(30))
+            .keep_alive_timeout(std::time::Duration::from_secs(20))
+            .keep_alive_while_idle(true)
+            .tcp_nodelay(true);
         if let Some((ca, domain)) = tls {
             let config = ClientTlsConfig::new()
                 .ca_certificate(Certificate::from_pem(ca))
@@ -71,13 +80,18 @@ impl Client {
         let inner = SimulatorClient::new(channel)
             .max_decoding_message_size(MAX_MESSAGE_BYTES)
             .max_encoding_message_size(MAX_MESSAGE_BYTES);
-        let token =
-            match token {
-                Some(t) => Some(format!("Bearer {t}").parse().map_err(|_| {
-                    ClientError::Address("the token is not valid header text".into())
-                })?),
-                None => None,
-            };
+        let token = match token {
+            Some(t) => {
+                let mut value: MetadataValue<tonic::metadata::Ascii> =
+                    format!("Bearer {t}").parse().map_err(|_| {
+                        ClientError::Address("the token is not valid header text".into())
+                    })?;
+                // Kept out of debug output and HPACK tables.
+                value.set_sensitive(true);
+                Some(value)
+            }
+            None => None,
+        };
         Ok(Self {
             inner,
             token,

@@ -1,13 +1,66 @@
 //! `unigait`: command-line client of the unigait service.
 
+use std::path::PathBuf;
 use std::time::Instant;
 
-use anyhow::{Result, bail};
+use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand, ValueEnum};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 use unigait_client::{Client, compliance, v1};
+
+const DEFAULT_SERVER: &str = "127.0.0.1:50051";
+
+/// The host part of a server address (`https://host:port/...`, `host:port`, `[::1]:port`).
+fn host_of(addr: &str) -> String {
+    let rest = addr.split_once("://").map_or(addr, |(_, r)| r);
+    let authority = rest.split('/').next().unwrap_or(rest);
+    if let Some(v6) = authority.strip_prefix('[') {
+        return v6.split(']').next().unwrap_or(v6).to_string();
+    }
+    authority
+        .rsplit_once(':')
+        .map_or(authority, |(h, _)| h)
+        .to_string()
+}
+
+async fn connect(cli: &Cli) -> Result<Client> {
+    let token = match (&cli.token, &cli.token_file) {
+        (Some(t), _) => Some(t.trim().to_string()),
+        (None, Some(path)) => Some(
+            std::fs::read_to_string(path)
+                .with_context(|| format!("cannot read the token file {}", path.display()))?
+                .trim()
+                .to_string(),
+        ),
+        (None, None) => None,
+    };
+    let ca = match &cli.tls_ca {
+        Some(path) => Some(
+            std::fs::read(path)
+                .with_context(|| format!("cannot read the CA certificate {}", path.display()))?,
+        ),
+        None => None,
+    };
+    let domain = cli
+        .tls_domain
+        .clone()
+        .unwrap_or_else(|| host_of(&cli.server));
+    let tls = ca.as_deref().map(|ca| (ca, domain.as_str()));
+    let connected = Client::connect_with(&cli.server, token.as_deref(), tls).await;
+    match connected {
+        Ok(c) => Ok(c),
+        Err(e @ unigait_client::ClientError::Connect { .. }) => Err(anyhow::Error::new(e).context(
+            format!(
+                "no unigait server answers at {}; start one with `unigait-server serve --addr {}` (or pass --server HOST:PORT)",
+                cli.server,
+                if cli.server.contains("://") { DEFAULT_SERVER } else { &cli.server }
+            ),
+        )),
+        Err(e) => Err(e.into()),
+    }
+}
 
 #[derive(Debug, Parser)]
 #[command(
@@ -16,12 +69,27 @@ use unigait_client::{Client, compliance, v1};
     about = "Command-line client of the unigait service"
 )]
 struct Cli {
-    /// Server address.
-    #[arg(long, global = true, default_value = "127.0.0.1:50051")]
+    /// Server address: HOST:PORT, http://HOST:PORT, or https://HOST:PORT (with --tls-ca).
+    #[arg(long, global = true, default_value = DEFAULT_SERVER)]
     server: String,
-    /// Bearer token (for servers beyond loopback).
-    #[arg(long, global = true, env = "UNIGAIT_TOKEN")]
+    /// Bearer token (for servers beyond loopback). Prefer the environment or --token-file: a
+    /// token on the command line shows in the process list.
+    #[arg(long, global = true, env = "UNIGAIT_TOKEN", hide_env_values = true)]
     token: Option<String>,
+    /// File holding the bearer token.
+    #[arg(
+        long,
+        global = true,
+        env = "UNIGAIT_TOKEN_FILE",
+        conflicts_with = "token"
+    )]
+    token_file: Option<PathBuf>,
+    /// CA certificate (PEM) to check the server's TLS certificate with; turns TLS on.
+    #[arg(long, global = true, env = "UNIGAIT_TLS_CA")]
+    tls_ca: Option<PathBuf>,
+    /// Name the server's certificate must carry (default: the host of --server).
+    #[arg(long, global = true)]
+    tls_domain: Option<String>,
     #[command(subcommand)]
     command: Command,
 }
@@ -132,7 +200,7 @@ async fn main() -> Result<()> {
         .with_writer(std::io::stderr)
         .init();
     let cli = Cli::parse();
-    let mut client = Client::connect_with_token(&cli.server, cli.token.as_deref()).await?;
+    let mut client = connect(&cli).await?;
     match cli.command {
         Command::Info { envs, overrides } => {
             let info = client.server_info().await?;

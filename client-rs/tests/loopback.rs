@@ -41,6 +41,7 @@ impl TestServer {
             base_config: TaskConfig::embedded_default(),
             tls,
             token: token.map(str::to_string),
+            ..ServeOptions::default()
         };
         let task = tokio::spawn(async move {
             serve(listener, options, async {
@@ -129,6 +130,7 @@ async fn session_limit_gives_resource_exhausted() {
         max_envs_per_session: 16,
         max_sessions: 2,
         idle_timeout_s: 600,
+        ..Limits::default()
     })
     .await;
     let mut c = server.client().await;
@@ -165,7 +167,13 @@ async fn session_limit_gives_resource_exhausted() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn vanished_client_frees_its_session_and_harms_nobody() {
-    let server = TestServer::start(Limits::default()).await;
+    // The session of a client whose stream broke stays for it to re-attach until the idle
+    // timeout, then goes.
+    let server = TestServer::start(Limits {
+        idle_timeout_s: 1,
+        ..Limits::default()
+    })
+    .await;
     let mut observer = server.client().await;
     let mut bystander = observer
         .create_session(config(2, 3))
@@ -200,6 +208,11 @@ async fn vanished_client_frees_its_session_and_harms_nobody() {
     let mut freed = false;
     for _ in 0..50 {
         tokio::time::sleep(Duration::from_millis(100)).await;
+        // Stepping keeps the bystander from going idle meanwhile.
+        bystander
+            .step(&[0.0; 24])
+            .await
+            .expect("the bystander steps");
         let info = observer.server_info().await.expect("info");
         if info.active_sessions == 1 {
             freed = true;
@@ -217,7 +230,8 @@ async fn vanished_client_frees_its_session_and_harms_nobody() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn bearer_token_is_required_when_configured() {
-    let server = TestServer::start_with_token(Limits::default(), Some("s3cret")).await;
+    let server =
+        TestServer::start_with_token(Limits::default(), Some("s3cret-s3cret-s3cret")).await;
     let addr = server.addr.to_string();
     let mut anonymous = Client::connect(&addr).await.expect("connect");
     let err = anonymous.server_info().await.expect_err("no token");
@@ -229,7 +243,7 @@ async fn bearer_token_is_required_when_configured() {
         wrong.server_info().await.expect_err("wrong token").code(),
         Some(Code::Unauthenticated)
     );
-    let mut right = Client::connect_with_token(&addr, Some("s3cret"))
+    let mut right = Client::connect_with_token(&addr, Some("s3cret-s3cret-s3cret"))
         .await
         .expect("connect");
     let mut session = right
@@ -280,13 +294,20 @@ fn self_signed_localhost() -> (Vec<u8>, Vec<u8>) {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn tls_with_token_serves_and_plaintext_is_refused() {
     let (cert, key) = self_signed_localhost();
-    let server =
-        TestServer::start_secured(Limits::default(), Some("t0ken"), Some((cert.clone(), key)))
-            .await;
+    let server = TestServer::start_secured(
+        Limits::default(),
+        Some("t0ken-t0ken-t0ken-t0ken"),
+        Some((cert.clone(), key)),
+    )
+    .await;
     let addr = format!("localhost:{}", server.addr.port());
-    let mut secure = Client::connect_with(&addr, Some("t0ken"), Some((&cert, "localhost")))
-        .await
-        .expect("TLS connect");
+    let mut secure = Client::connect_with(
+        &addr,
+        Some("t0ken-t0ken-t0ken-t0ken"),
+        Some((&cert, "localhost")),
+    )
+    .await
+    .expect("TLS connect");
     let info = secure.server_info().await.expect("info over TLS");
     assert_eq!(info.protocol_version, "v1");
     let mut session = secure
@@ -296,7 +317,7 @@ async fn tls_with_token_serves_and_plaintext_is_refused() {
     session.step(&[0.0; 12]).await.expect("step over TLS");
     session.close().await.expect("close");
     // A plaintext client gets no service from a TLS server.
-    let plain = Client::connect_with_token(&addr, Some("t0ken")).await;
+    let plain = Client::connect_with_token(&addr, Some("t0ken-t0ken-t0ken-t0ken")).await;
     let refused = match plain {
         Err(_) => true,
         Ok(mut c) => c.server_info().await.is_err(),

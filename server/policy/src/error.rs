@@ -77,6 +77,41 @@ pub enum PolicyError {
         /// The shape behind `expected`.
         detail: String,
     },
+    /// The model is not one a policy may be (a missing graph, negative dims, ...).
+    #[error("not a usable policy: {message}")]
+    Invalid {
+        /// What is wrong.
+        message: String,
+    },
+    /// The graph uses an op outside the policy allow-list.
+    #[error(
+        "node `{node}` uses op `{op}`, which a policy may not use (an MLP policy needs Gemm/MatMul, activations, Concat, Flatten, Reshape, Slice, Gather, ...)"
+    )]
+    UnsupportedOp {
+        /// The op (with its domain when not the standard one).
+        op: String,
+        /// The node's name.
+        node: String,
+    },
+    /// Part of the model is over a size limit.
+    #[error("the policy's {what} is {size}, over the limit of {limit}")]
+    TooLarge {
+        /// What was measured.
+        what: String,
+        /// Its size.
+        size: u64,
+        /// The limit.
+        limit: u64,
+    },
+    /// Loading or running the policy went over its worker's memory or time limit.
+    #[error("{0}")]
+    ResourceLimit(String),
+    /// The policy worker could not be started or talked to (a server-side failure).
+    #[error("policy worker: {0}")]
+    Worker(String),
+    /// The caller stopped the run (its deadline passed or it went away).
+    #[error("{0}")]
+    Stopped(String),
     /// Inference failed.
     #[error("policy inference failed: {0}")]
     Run(String),

@@ -7,15 +7,23 @@
 //! optimised for each row count met (built on first use, cached; large batches go in chunks).
 //! [`ObsHistory`] keeps the per-env history the policy reads; [`Policy`] is the interface the
 //! evaluation runs, so scripted test policies ([`ConstantPolicy`]) fit in as well.
+//!
+//! Policies from untrusted clients go through [`check_model`] (an op allow-list and size
+//! caps) and load and run in a worker process with memory and time limits
+//! ([`SandboxedPolicy`]).
 #![warn(missing_docs)]
 
+mod checks;
 mod elu;
 mod error;
 mod history;
 mod onnx;
 mod policy;
+mod sandbox;
 
+pub use checks::{ALLOWED_OPS, ModelLimits, check_model, parse_checked};
 pub use error::PolicyError;
 pub use history::ObsHistory;
 pub use onnx::{InputLayout, OnnxPolicy};
 pub use policy::{ConstantPolicy, Policy, PolicySpec};
+pub use sandbox::{SandboxLimits, SandboxedPolicy, WORKER_SUBCOMMAND, run_worker};

@@ -15,6 +15,7 @@ use tract_onnx::pb;
 use tract_onnx::pb::tensor_shape_proto::dimension::Value as DimValue;
 use tract_onnx::prelude::*;
 
+use crate::checks::{ModelLimits, parse_checked};
 use crate::error::PolicyError;
 use crate::policy::{Policy, PolicySpec};
 
@@ -343,14 +344,32 @@ impl OnnxPolicy {
                 len: bytes.len(),
                 message: tract_message(&e),
             })?;
-        let declared = inspect(&proto, &spec).map_err(|e| match e {
-            PolicyError::Parse { message, .. } => PolicyError::Parse {
-                len: bytes.len(),
-                message,
-            },
+        Self::from_proto(&proto, bytes.len(), spec)
+    }
+
+    /// Load an untrusted policy: check its size, ops and constants against `limits` (see
+    /// [`crate::ALLOWED_OPS`]) before tract analyses it. Run it in a worker process with memory
+    /// and time limits ([`crate::SandboxedPolicy`]): allowed ops can still fold into large
+    /// tensors.
+    pub fn from_untrusted_bytes(
+        bytes: &[u8],
+        spec: PolicySpec,
+        limits: &ModelLimits,
+    ) -> Result<Self, PolicyError> {
+        let proto = parse_checked(bytes, limits)?;
+        Self::from_proto(&proto, bytes.len(), spec)
+    }
+
+    fn from_proto(
+        proto: &pb::ModelProto,
+        len: usize,
+        spec: PolicySpec,
+    ) -> Result<Self, PolicyError> {
+        let declared = inspect(proto, &spec).map_err(|e| match e {
+            PolicyError::Parse { message, .. } => PolicyError::Parse { len, message },
             other => other,
         })?;
-        let symbolic = typed(&proto, &spec, &declared, None).and_then(|(model, batch)| {
+        let symbolic = typed(proto, &spec, &declared, None).and_then(|(model, batch)| {
             let TDim::Sym(batch) = batch else {
                 return Err(PolicyError::Build {
                     stage: "setting the input shape",
@@ -373,7 +392,7 @@ impl OnnxPolicy {
                         batch = b,
                         "policy batch cannot be made symbolic; running in chunks of its fixed batch"
                     );
-                    let (model, _) = typed(&proto, &spec, &declared, Some(b))?;
+                    let (model, _) = typed(proto, &spec, &declared, Some(b))?;
                     (plan(model)?, None, Some(b))
                 }
                 _ => return Err(e),

@@ -83,16 +83,35 @@ fn gather(values: &[f32], dim: usize, ids: &[u32]) -> Vec<f32> {
     out
 }
 
-/// A step reply from the batch's outputs.
+/// A step reply from the batch's outputs. Envs flagged in `already_ended` (autoreset
+/// disabled: their episode ended at an earlier step and they were not reset) report no end
+/// and no reward.
 pub fn step_result(
     out: &StepOutput,
     reward_terms: bool,
     step_count: u64,
     nonfinite_resets: u32,
+    already_ended: Option<&[u8]>,
 ) -> v1::StepResult {
     let n = out.len();
+    let stale = |i: usize| already_ended.is_some_and(|e| e.get(i).is_some_and(|&v| v != 0));
+    let masked = |flags: &[u8]| -> Vec<u8> {
+        (0..n)
+            .map(|i| if stale(i) { 0 } else { flags[i] })
+            .collect()
+    };
+    let terminated = masked(&out.terminated);
+    let truncated = masked(&out.truncated);
+    let mut reward = out.reward.clone();
+    let mut terms = reward_terms.then(|| out.reward_terms.clone());
+    for i in (0..n).filter(|&i| stale(i)) {
+        reward[i] = 0.0;
+        if let Some(t) = terms.as_mut() {
+            t[i * RewardTerm::COUNT..(i + 1) * RewardTerm::COUNT].fill(0.0);
+        }
+    }
     let ended: Vec<u32> = (0..n)
-        .filter(|&i| out.terminated[i] != 0 || out.truncated[i] != 0)
+        .filter(|&i| terminated[i] != 0 || truncated[i] != 0)
         .map(|i| i as u32)
         .collect();
     let k = ended.len();
@@ -104,10 +123,10 @@ pub fn step_result(
         obs: Some(f32_tensor(&out.obs, &[n, OBS_DIM])),
         labels: Some(f32_tensor(&out.labels, &[n, LABEL_DIM])),
         privileged: Some(f32_tensor(&out.privileged, &[n, PRIVILEGED_DIM])),
-        reward: Some(f32_tensor(&out.reward, &[n])),
-        reward_terms: reward_terms.then(|| f32_tensor(&out.reward_terms, &[n, RewardTerm::COUNT])),
-        terminated: Some(u8_tensor(&out.terminated, &[n])),
-        truncated: Some(u8_tensor(&out.truncated, &[n])),
+        reward: Some(f32_tensor(&reward, &[n])),
+        reward_terms: terms.map(|t| f32_tensor(&t, &[n, RewardTerm::COUNT])),
+        terminated: Some(u8_tensor(&terminated, &[n])),
+        truncated: Some(u8_tensor(&truncated, &[n])),
         final_obs: Some(f32_tensor(
             &gather(&out.final_obs, OBS_DIM, &ended),
             &[k, OBS_DIM],
@@ -125,6 +144,7 @@ pub fn step_result(
         mode: Some(u8_tensor(&out.mode, &[n])),
         terrain_level: Some(u32_tensor(&out.terrain_level, &[n])),
         head_contact: Some(u8_tensor(&out.head_contact, &[n])),
+        nonfinite: Some(u8_tensor(&out.nonfinite, &[n])),
         step_count,
         nonfinite_resets,
     }

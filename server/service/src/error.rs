@@ -26,14 +26,38 @@ pub enum ServiceError {
     /// The request conflicts with the session's state (e.g. a second step stream).
     #[error("{0}")]
     Precondition(String),
+    /// A session broke on a server bug (a panic while stepping) and was closed.
+    #[error("session `{0}` broke on a server error and was closed; create a new one")]
+    Broken(String),
+    /// The server is shutting down.
+    #[error("{0}")]
+    Unavailable(String),
+    /// The call ran past its deadline or its caller went away.
+    #[error("{0}")]
+    Deadline(String),
     /// A bug or an unexpected failure on the server side.
     #[error("internal error: {0}")]
     Internal(String),
 }
 
+/// Longest status message sent: messages may echo client strings (names, TOML, shapes).
+pub const MAX_STATUS_MESSAGE_CHARS: usize = 400;
+
+/// `message` cut to [`MAX_STATUS_MESSAGE_CHARS`] characters, marked when cut.
+pub fn cut_message(message: &str) -> String {
+    match message.char_indices().nth(MAX_STATUS_MESSAGE_CHARS) {
+        None => message.to_string(),
+        Some((at, _)) => format!(
+            "{}... ({} more bytes cut)",
+            &message[..at],
+            message.len() - at
+        ),
+    }
+}
+
 impl From<ServiceError> for Status {
     fn from(e: ServiceError) -> Self {
-        let message = e.to_string();
+        let message = cut_message(&e.to_string());
         match e {
             ServiceError::UnknownSession(_) => Status::not_found(message),
             ServiceError::InvalidArgument(_) | ServiceError::Tensor(_) => {
@@ -50,7 +74,9 @@ impl From<ServiceError> for Status {
             },
             ServiceError::LimitExceeded(_) => Status::resource_exhausted(message),
             ServiceError::Precondition(_) => Status::failed_precondition(message),
-            ServiceError::Internal(_) => Status::internal(message),
+            ServiceError::Broken(_) | ServiceError::Internal(_) => Status::internal(message),
+            ServiceError::Unavailable(_) => Status::unavailable(message),
+            ServiceError::Deadline(_) => Status::deadline_exceeded(message),
         }
     }
 }

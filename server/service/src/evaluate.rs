@@ -4,11 +4,15 @@
 //! [`handle`] is blocking (it builds envs and steps them): call it from the handler on a
 //! blocking thread, e.g. `blocking(move || crate::evaluate::handle(request, &ctx)).await`.
 
+use std::path::PathBuf;
 use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
 
+use prost::Message;
 use tracing::info;
 use unigait_eval::{EvalError, EvalOptions, Policies, StepObserver, evaluate};
-use unigait_policy::{OnnxPolicy, Policy, PolicyError};
+use unigait_policy::{OnnxPolicy, Policy, PolicyError, PolicySpec, SandboxLimits, SandboxedPolicy};
 use unigait_proto::v1;
 use unigait_record::{RecordError, RecordOptions, Recorder};
 use unigait_sim::env::VecEnv;
@@ -28,6 +32,16 @@ pub struct EvaluateContext {
     pub pool: Option<Arc<rayon::ThreadPool>>,
     /// Most envs an evaluation may run (the server's per-session limit).
     pub max_envs: usize,
+    /// The executable client policies are loaded and run in (a binary whose
+    /// `policy-worker` subcommand runs [`unigait_policy::run_worker`]), with its limits. None:
+    /// in this process, after the static checks only (tests and trusted use).
+    pub policy_worker: Option<(PathBuf, SandboxLimits)>,
+    /// Longest an evaluation may run.
+    pub max_duration: Duration,
+    /// Largest Evaluate reply (bytes).
+    pub max_reply_bytes: usize,
+    /// Largest policy (bytes).
+    pub max_policy_bytes: usize,
 }
 
 impl EvaluateContext {
@@ -38,7 +52,44 @@ impl EvaluateContext {
             model: Arc::new(RobotModel::go2()),
             pool: None,
             max_envs,
+            policy_worker: None,
+            max_duration: Duration::from_secs(900),
+            max_reply_bytes: 32 << 20,
+            max_policy_bytes: 16 << 20,
         }
+    }
+}
+
+/// Set to stop an evaluation (its caller went away or its deadline passed).
+pub type StopFlag = Arc<AtomicBool>;
+
+/// A policy that refuses to act once its evaluation should stop: the rollout ends at the next
+/// step.
+struct Stoppable {
+    inner: Arc<dyn Policy>,
+    stop: StopFlag,
+    deadline: Instant,
+    max_duration: Duration,
+}
+
+impl Policy for Stoppable {
+    fn spec(&self) -> PolicySpec {
+        self.inner.spec()
+    }
+
+    fn act(&self, history: &[f32], batch: usize, actions: &mut [f32]) -> Result<(), PolicyError> {
+        if self.stop.load(Ordering::Acquire) {
+            return Err(PolicyError::Stopped(
+                "the evaluation was stopped: its caller went away or its deadline passed".into(),
+            ));
+        }
+        if Instant::now() > self.deadline {
+            return Err(PolicyError::ResourceLimit(format!(
+                "the evaluation ran longer than the {} s this server allows; use fewer envs or a shorter scenario",
+                self.max_duration.as_secs()
+            )));
+        }
+        self.inner.act(history, batch, actions)
     }
 }
 
@@ -52,20 +103,56 @@ impl From<EvalError> for ServiceError {
     }
 }
 
-/// A policy the client sent that cannot be loaded or run: the client's to fix.
+/// A policy the client sent that cannot be loaded or run: the client's to fix, or over a
+/// limit. Only a worker that cannot start is the server's fault.
 fn policy_error(which: &str, e: PolicyError) -> ServiceError {
-    ServiceError::InvalidArgument(format!("{which}: {e}"))
+    let message = format!("{which}: {e}");
+    match e {
+        PolicyError::TooLarge { .. } | PolicyError::ResourceLimit(_) => {
+            ServiceError::LimitExceeded(message)
+        }
+        PolicyError::Stopped(_) => ServiceError::Deadline(message),
+        PolicyError::Worker(_) => ServiceError::Internal(message),
+        _ => ServiceError::InvalidArgument(message),
+    }
 }
 
-fn load(which: &str, bytes: &[u8]) -> Result<Arc<dyn Policy>, ServiceError> {
+fn load(
+    which: &str,
+    bytes: &[u8],
+    ctx: &EvaluateContext,
+    stop: &StopFlag,
+    deadline: Instant,
+) -> Result<Arc<dyn Policy>, ServiceError> {
     if bytes.is_empty() {
         return Err(ServiceError::InvalidArgument(format!(
             "EvaluateRequest.{which} is empty: send the ONNX policy's bytes"
         )));
     }
-    let policy = OnnxPolicy::from_bytes(bytes, unigait_eval::sim_policy_spec())
-        .map_err(|e| policy_error(which, e))?;
-    Ok(Arc::new(policy))
+    if bytes.len() > ctx.max_policy_bytes {
+        return Err(ServiceError::LimitExceeded(format!(
+            "EvaluateRequest.{which} has {} bytes; this server takes policies up to {}",
+            bytes.len(),
+            ctx.max_policy_bytes
+        )));
+    }
+    let spec = unigait_eval::sim_policy_spec();
+    let policy: Arc<dyn Policy> = match &ctx.policy_worker {
+        Some((exe, limits)) => Arc::new(
+            SandboxedPolicy::spawn(exe, bytes, spec, *limits)
+                .map_err(|e| policy_error(which, e))?,
+        ),
+        None => Arc::new(
+            OnnxPolicy::from_untrusted_bytes(bytes, spec, &Default::default())
+                .map_err(|e| policy_error(which, e))?,
+        ),
+    };
+    Ok(Arc::new(Stoppable {
+        inner: policy,
+        stop: stop.clone(),
+        deadline,
+        max_duration: ctx.max_duration,
+    }))
 }
 
 /// Records env 0 of the first case the evaluation runs.
@@ -120,7 +207,9 @@ impl StepObserver for FirstCaseRecorder {
 pub fn handle(
     request: v1::EvaluateRequest,
     ctx: &EvaluateContext,
+    stop: &StopFlag,
 ) -> Result<v1::EvaluateResponse, ServiceError> {
+    let deadline = Instant::now() + ctx.max_duration;
     let n = request.num_envs as usize;
     if n > ctx.max_envs {
         return Err(ServiceError::LimitExceeded(format!(
@@ -132,13 +221,19 @@ pub fn handle(
     if request.scenario != unigait_eval::TABLE_VI {
         unigait_eval::scenario(&request.scenario)?;
     }
-    let unified = load("policy_onnx", &request.policy_onnx)?;
+    let unified = load("policy_onnx", &request.policy_onnx, ctx, stop, deadline)?;
     let policies = if request.biped_policy_onnx.is_empty() {
         Policies::Unified(unified)
     } else {
         Policies::TwoPolicy {
             quad: unified,
-            biped: load("biped_policy_onnx", &request.biped_policy_onnx)?,
+            biped: load(
+                "biped_policy_onnx",
+                &request.biped_policy_onnx,
+                ctx,
+                stop,
+                deadline,
+            )?,
         }
     };
     let options = EvalOptions {
@@ -183,7 +278,7 @@ pub fn handle(
         rrd_bytes = recording_rrd.len(),
         "evaluation done"
     );
-    Ok(v1::EvaluateResponse {
+    let reply = v1::EvaluateResponse {
         metrics: report
             .metrics
             .iter()
@@ -191,5 +286,13 @@ pub fn handle(
             .collect(),
         report_json: report.to_json(),
         recording_rrd: recording_rrd.into(),
-    })
+    };
+    let size = reply.encoded_len();
+    if size > ctx.max_reply_bytes {
+        return Err(ServiceError::LimitExceeded(format!(
+            "the evaluation's reply would be {size} bytes, over this server's limit of {}; evaluate fewer envs or record a shorter scenario",
+            ctx.max_reply_bytes
+        )));
+    }
+    Ok(reply)
 }

@@ -7,6 +7,7 @@ mod convert;
 mod error;
 mod evaluate;
 mod limits;
+mod overrides;
 pub mod probe;
 mod server;
 mod service;
@@ -15,5 +16,7 @@ mod terrain;
 
 pub use error::ServiceError;
 pub use evaluate::EvaluateContext;
-pub use limits::Limits;
-pub use server::{ServeError, ServeOptions, is_loopback, serve, shutdown_signal};
+pub use limits::{CostCaps, Limits};
+pub use server::{
+    MIN_TOKEN_LEN, ServeError, ServeOptions, check_token, is_loopback, serve, shutdown_signal,
+};

@@ -5,7 +5,10 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
-use unigait_server::{Limits, ServeOptions, bench, is_loopback, probe, serve, shutdown_signal};
+use unigait_policy::SandboxLimits;
+use unigait_server::{
+    Limits, ServeOptions, bench, check_token, is_loopback, probe, serve, shutdown_signal,
+};
 use unigait_sim::task::TaskConfig;
 
 /// The unigait simulation service.
@@ -24,6 +27,10 @@ enum Command {
     Bench(bench::BenchArgs),
     /// Share of episodes a termination ends early when every env holds the default stance.
     Probe(probe::ProbeArgs),
+    /// Load and run one client policy under limits, talking over stdin/stdout (started by the
+    /// server itself).
+    #[command(name = "policy-worker", hide = true)]
+    PolicyWorker,
 }
 
 #[derive(Debug, clap::Args)]
@@ -55,9 +62,27 @@ struct ServeArgs {
     /// Largest number of concurrent sessions.
     #[arg(long, default_value_t = Limits::default().max_sessions)]
     max_sessions: usize,
-    /// Seconds an unused session lives.
+    /// Seconds an unused session lives (a client whose stream broke may re-attach meanwhile).
     #[arg(long, default_value_t = Limits::default().idle_timeout_s)]
     idle_timeout: u64,
+    /// Largest number of envs over all sessions.
+    #[arg(long, default_value_t = Limits::default().max_total_envs)]
+    max_total_envs: usize,
+    /// Seconds a step stream may wait for its client's next request.
+    #[arg(long, default_value_t = Limits::default().stream_idle_timeout_s)]
+    stream_idle_timeout: u64,
+    /// Evaluations running at once.
+    #[arg(long, default_value_t = Limits::default().max_concurrent_evaluations)]
+    max_evaluations: usize,
+    /// Seconds one evaluation may run.
+    #[arg(long, default_value_t = Limits::default().max_evaluation_s)]
+    max_evaluation_seconds: u64,
+    /// Address space of a policy worker (MiB).
+    #[arg(long, default_value_t = SandboxLimits::default().memory_bytes >> 20)]
+    policy_memory_mib: u64,
+    /// Seconds a shutdown waits for calls in flight.
+    #[arg(long, default_value_t = 10)]
+    drain_timeout: u64,
 }
 
 fn read(path: &PathBuf) -> Result<Vec<u8>> {
@@ -86,6 +111,9 @@ async fn run_serve(args: ServeArgs) -> Result<()> {
         ),
         None => None,
     };
+    if let Some(t) = &token {
+        check_token(t).context("--token-file")?;
+    }
     if remote && (tls.is_none() || token.is_none()) {
         bail!("serving beyond loopback needs --tls-cert, --tls-key and --token-file");
     }
@@ -100,11 +128,24 @@ async fn run_serve(args: ServeArgs) -> Result<()> {
             max_envs_per_session: args.max_envs,
             max_sessions: args.max_sessions,
             idle_timeout_s: args.idle_timeout,
+            max_total_envs: args.max_total_envs,
+            stream_idle_timeout_s: args.stream_idle_timeout,
+            max_concurrent_evaluations: args.max_evaluations,
+            max_evaluation_s: args.max_evaluation_seconds,
+            ..Limits::default()
         },
         threads: args.threads,
         base_config,
         tls,
         token,
+        policy_worker: Some(std::env::current_exe().context("cannot find this executable")?),
+        sandbox: SandboxLimits {
+            memory_bytes: args.policy_memory_mib << 20,
+            cpu_seconds: args.max_evaluation_seconds,
+            ..SandboxLimits::default()
+        },
+        drain_timeout: std::time::Duration::from_secs(args.drain_timeout),
+        ..ServeOptions::default()
     };
     let listener = tokio::net::TcpListener::bind(args.addr)
         .await
@@ -118,6 +159,10 @@ async fn run_serve(args: ServeArgs) -> Result<()> {
 }
 
 fn main() -> Result<()> {
+    // The policy worker starts with nothing else running: it caps its own resources first.
+    if std::env::args().nth(1).as_deref() == Some(unigait_policy::WORKER_SUBCOMMAND) {
+        return unigait_policy::run_worker().context("policy worker");
+    }
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
@@ -145,5 +190,6 @@ fn main() -> Result<()> {
             println!("{}", serde_json::to_string_pretty(&probe::run(&args)?)?);
             Ok(())
         }
+        Command::PolicyWorker => Ok(unigait_policy::run_worker()?),
     }
 }

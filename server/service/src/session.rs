@@ -5,6 +5,7 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
+use tokio::sync::Notify;
 use unigait_proto::TensorView;
 use unigait_proto::v1::{self, AutoresetMode};
 use unigait_sim::env::{VecEnv, VecEnvOptions};
@@ -13,6 +14,15 @@ use unigait_sim::prelude::*;
 use crate::convert;
 use crate::error::ServiceError;
 use crate::limits::Limits;
+use crate::overrides;
+
+/// A session's envs and what the service tracks about their episodes.
+struct Batch {
+    env: VecEnv,
+    /// With autoreset disabled: envs whose episode ended and that were not reset since. Their
+    /// end is reported once; later steps report neither a termination nor a reward for them.
+    ended: Vec<u8>,
+}
 
 /// A session: its envs behind a lock (stepped on the shared worker pool), its spec and bookkeeping.
 pub struct Session {
@@ -20,11 +30,18 @@ pub struct Session {
     pub id: String,
     /// The spec sent at creation.
     pub spec: v1::Spec,
-    env: Mutex<VecEnv>,
+    /// None once closed: the envs are freed at the close, whoever still holds the session.
+    batch: Mutex<Option<Batch>>,
+    autoreset: bool,
     reward_terms: bool,
     streaming: AtomicBool,
+    closed: AtomicBool,
+    /// Woken when the session is closed (ends its step stream).
+    close_notify: Notify,
     steps: AtomicU64,
     last_used: Mutex<Instant>,
+    /// Test hook: panic while stepping (see `ServeOptions::fault_injection_seed`).
+    panic_on_step: bool,
 }
 
 /// Marks a session as having an open step stream until dropped.
@@ -32,22 +49,58 @@ pub struct StreamGuard(Arc<Session>);
 
 impl Drop for StreamGuard {
     fn drop(&mut self) {
+        self.0.touch();
         self.0.streaming.store(false, Ordering::Release);
     }
 }
 
+fn closed_error(id: &str) -> ServiceError {
+    ServiceError::UnknownSession(id.to_string())
+}
+
 impl Session {
-    fn lock(&self) -> Result<MutexGuard<'_, VecEnv>, ServiceError> {
-        *self
-            .last_used
+    fn touch(&self) {
+        if let Ok(mut t) = self.last_used.lock() {
+            *t = Instant::now();
+        }
+    }
+
+    /// The session's batch; a lock poisoned by a panic while stepping breaks the session.
+    fn lock(&self) -> Result<MutexGuard<'_, Option<Batch>>, ServiceError> {
+        self.touch();
+        let mut guard = self
+            .batch
             .lock()
-            .map_err(|_| ServiceError::Internal("poisoned lock".into()))? = Instant::now();
-        self.env.lock().map_err(|_| {
-            ServiceError::Internal(format!(
-                "session `{}` is broken by an earlier panic",
-                self.id
-            ))
-        })
+            .map_err(|_| ServiceError::Broken(self.id.clone()))?;
+        if self.is_closed() {
+            guard.take();
+            return Err(closed_error(&self.id));
+        }
+        Ok(guard)
+    }
+
+    /// Whether the session was closed.
+    pub fn is_closed(&self) -> bool {
+        self.closed.load(Ordering::Acquire)
+    }
+
+    /// Resolves once the session is closed.
+    pub async fn closed(&self) {
+        let notified = self.close_notify.notified();
+        if self.is_closed() {
+            return;
+        }
+        notified.await;
+    }
+
+    /// Mark closed, wake its stream and free its envs (unless a step holds them: then the step
+    /// frees them when it ends, as its holder is the last).
+    fn shut(&self) {
+        self.closed.store(true, Ordering::Release);
+        self.close_notify.notify_waiters();
+        if let Ok(mut batch) = self.batch.try_lock() {
+            batch.take();
+        }
     }
 
     /// Claim the session's single step stream.
@@ -58,7 +111,20 @@ impl Session {
                 self.id
             )));
         }
+        self.touch();
         Ok(StreamGuard(self.clone()))
+    }
+
+    /// A unary Step: refused while the session has an open stream (its steps would interleave
+    /// with the stream's unseen).
+    pub fn step_unary(&self, request: &v1::StepRequest) -> Result<v1::StepResult, ServiceError> {
+        if self.streaming.load(Ordering::Acquire) {
+            return Err(ServiceError::Precondition(format!(
+                "session `{}` has an open step stream: step it there (a unary Step would interleave)",
+                self.id
+            )));
+        }
+        self.step(request)
     }
 
     /// One batched step (blocking: call from a blocking thread).
@@ -66,40 +132,65 @@ impl Session {
         let actions = request.actions.as_ref().ok_or_else(|| {
             ServiceError::InvalidArgument("StepRequest.actions is missing".into())
         })?;
-        let values = actions.f32_values("actions")?;
-        let mut env = self.lock()?;
-        let n = env.num_envs();
+        let mut guard = self.lock()?;
+        let batch = guard.as_mut().ok_or_else(|| closed_error(&self.id))?;
+        let n = batch.env.num_envs();
         actions.expect_shape("actions", &[n, NUM_JOINTS])?;
-        let before = env.nonfinite_resets();
-        env.step(&values)?;
+        let values = actions.f32_values("actions")?;
+        if self.panic_on_step {
+            panic!("injected fault in session `{}`", self.id);
+        }
+        let before = batch.env.nonfinite_resets();
+        batch.env.step(&values)?;
         let steps = self.steps.fetch_add(1, Ordering::Relaxed) + 1;
-        let nonfinite = (env.nonfinite_resets() - before) as u32;
-        Ok(convert::step_result(
-            env.output(),
+        let nonfinite = (batch.env.nonfinite_resets() - before) as u32;
+        let out = batch.env.output();
+        let result = convert::step_result(
+            out,
             self.reward_terms || request.reward_terms,
             steps,
             nonfinite,
-        ))
+            (!self.autoreset).then_some(&batch.ended[..]),
+        );
+        if !self.autoreset {
+            for i in 0..n {
+                let done = out.terminated[i] != 0 || out.truncated[i] != 0;
+                // A blow-up is reset by the core even without autoreset: a new episode.
+                if done && out.nonfinite[i] == 0 {
+                    batch.ended[i] = 1;
+                }
+            }
+        }
+        Ok(result)
     }
 
     /// Reset all envs, or those where `mask` is non-zero (blocking).
     pub fn reset(&self, mask: Option<&v1::Tensor>) -> Result<v1::StepResult, ServiceError> {
-        let mut env = self.lock()?;
-        let n = env.num_envs();
+        let mut guard = self.lock()?;
+        let batch = guard.as_mut().ok_or_else(|| closed_error(&self.id))?;
+        let n = batch.env.num_envs();
         match mask {
             None => {
-                env.reset();
+                batch.env.reset();
+                batch.ended.fill(0);
             }
             Some(m) => {
                 m.expect_shape("mask", &[n])?;
-                env.reset_envs(m.u8_values("mask")?)?;
+                let mask = m.u8_values("mask")?;
+                batch.env.reset_envs(mask)?;
+                for (e, &m) in batch.ended.iter_mut().zip(mask) {
+                    if m != 0 {
+                        *e = 0;
+                    }
+                }
             }
         }
         Ok(convert::step_result(
-            env.output(),
+            batch.env.output(),
             self.reward_terms,
             self.steps.load(Ordering::Relaxed),
             0,
+            None,
         ))
     }
 
@@ -111,24 +202,60 @@ impl Session {
     }
 }
 
+/// The table of sessions and the envs and slots reserved for sessions being built.
+#[derive(Default)]
+struct Registry {
+    map: HashMap<String, Arc<Session>>,
+    /// Envs of open sessions and of sessions being built.
+    envs: usize,
+    /// Sessions being built.
+    pending: usize,
+}
+
+/// A slot and envs reserved for a session being built; given back unless committed.
+struct Reservation<'a> {
+    sessions: &'a Sessions,
+    envs: usize,
+    committed: bool,
+}
+
+impl Drop for Reservation<'_> {
+    fn drop(&mut self) {
+        if self.committed {
+            return;
+        }
+        if let Ok(mut r) = self.sessions.registry() {
+            r.pending = r.pending.saturating_sub(1);
+            r.envs = r.envs.saturating_sub(self.envs);
+        }
+    }
+}
+
 /// All sessions of a server.
 pub struct Sessions {
-    map: Mutex<HashMap<String, Arc<Session>>>,
+    registry: Mutex<Registry>,
     limits: Limits,
     model: Arc<RobotModel>,
     base_config: TaskConfig,
     pool: Arc<rayon::ThreadPool>,
+    fault_injection_seed: Option<u64>,
 }
 
 impl Sessions {
     /// An empty registry.
-    pub fn new(limits: Limits, base_config: TaskConfig, pool: Arc<rayon::ThreadPool>) -> Self {
+    pub fn new(
+        limits: Limits,
+        base_config: TaskConfig,
+        pool: Arc<rayon::ThreadPool>,
+        fault_injection_seed: Option<u64>,
+    ) -> Self {
         Self {
-            map: Mutex::new(HashMap::new()),
+            registry: Mutex::new(Registry::default()),
             limits,
             model: Arc::new(RobotModel::go2()),
             base_config,
             pool,
+            fault_injection_seed,
         }
     }
 
@@ -142,26 +269,45 @@ impl Sessions {
         self.pool.current_num_threads()
     }
 
-    fn map(&self) -> Result<MutexGuard<'_, HashMap<String, Arc<Session>>>, ServiceError> {
-        self.map
+    fn registry(&self) -> Result<MutexGuard<'_, Registry>, ServiceError> {
+        self.registry
             .lock()
             .map_err(|_| ServiceError::Internal("session table lock poisoned".into()))
     }
 
     /// Number of open sessions.
     pub fn len(&self) -> usize {
-        self.map().map(|m| m.len()).unwrap_or(0)
+        self.registry().map(|r| r.map.len()).unwrap_or(0)
     }
 
-    fn check_room(&self) -> Result<(), ServiceError> {
-        let open = self.map()?.len();
-        if open >= self.limits.max_sessions {
+    /// Envs of open sessions (and of sessions being built).
+    pub fn envs_in_use(&self) -> usize {
+        self.registry().map(|r| r.envs).unwrap_or(0)
+    }
+
+    /// Reserve a session slot and `n` envs before building them.
+    fn reserve(&self, n: usize) -> Result<Reservation<'_>, ServiceError> {
+        let mut r = self.registry()?;
+        if r.map.len() + r.pending >= self.limits.max_sessions {
             return Err(ServiceError::LimitExceeded(format!(
                 "the server holds its maximum of {} sessions; close one or start the server with a higher --max-sessions",
                 self.limits.max_sessions
             )));
         }
-        Ok(())
+        if r.envs + n > self.limits.max_total_envs {
+            return Err(ServiceError::LimitExceeded(format!(
+                "{n} envs requested but only {} of the server's {} are free (--max-total-envs)",
+                self.limits.max_total_envs.saturating_sub(r.envs),
+                self.limits.max_total_envs
+            )));
+        }
+        r.pending += 1;
+        r.envs += n;
+        Ok(Reservation {
+            sessions: self,
+            envs: n,
+            committed: false,
+        })
     }
 
     /// Build a session (blocking: it creates and resets every env).
@@ -180,13 +326,14 @@ impl Sessions {
                 ))
             });
         }
-        self.check_room()?;
         let task = if config.task_overrides_toml.trim().is_empty() {
             self.base_config.clone()
         } else {
+            overrides::check_shape(&config.task_overrides_toml, &self.limits)?;
             self.base_config
                 .with_overrides(&config.task_overrides_toml)?
         };
+        overrides::check_costs(&task, &self.limits.cost)?;
         let autoreset = match AutoresetMode::try_from(config.autoreset) {
             Ok(AutoresetMode::Disabled) => AutoresetMode::Disabled,
             Ok(_) => AutoresetMode::SameStep,
@@ -197,6 +344,7 @@ impl Sessions {
                 )));
             }
         };
+        let mut reservation = self.reserve(n)?;
         let (terrain, terrain_name) =
             crate::terrain::terrain_for(config.terrain.as_ref(), config.seed)?;
         let options = VecEnvOptions {
@@ -214,58 +362,78 @@ impl Sessions {
             self.pool.clone(),
         )?;
         let spec = convert::spec(&env, autoreset, &terrain_name)?;
-        let initial = convert::step_result(env.output(), config.reward_terms, 0, 0);
+        let initial = convert::step_result(env.output(), config.reward_terms, 0, 0, None);
         let session = Arc::new(Session {
             id: uuid::Uuid::new_v4().to_string(),
             spec,
-            env: Mutex::new(env),
+            batch: Mutex::new(Some(Batch {
+                env,
+                ended: vec![0; n],
+            })),
+            autoreset: autoreset == AutoresetMode::SameStep,
             reward_terms: config.reward_terms,
             streaming: AtomicBool::new(false),
+            closed: AtomicBool::new(false),
+            close_notify: Notify::new(),
             steps: AtomicU64::new(0),
             last_used: Mutex::new(Instant::now()),
+            panic_on_step: self.fault_injection_seed == Some(config.seed),
         });
-        let mut map = self.map()?;
-        // Another request may have taken the last slot while the envs were being built.
-        if map.len() >= self.limits.max_sessions {
-            return Err(ServiceError::LimitExceeded(format!(
-                "the server holds its maximum of {} sessions",
-                self.limits.max_sessions
-            )));
-        }
-        map.insert(session.id.clone(), session.clone());
+        let mut r = self.registry()?;
+        r.map.insert(session.id.clone(), session.clone());
+        r.pending = r.pending.saturating_sub(1);
+        reservation.committed = true;
         Ok((session, initial))
     }
 
     /// The session `id`.
     pub fn get(&self, id: &str) -> Result<Arc<Session>, ServiceError> {
-        self.map()?
+        self.registry()?
+            .map
             .get(id)
             .cloned()
             .ok_or_else(|| ServiceError::UnknownSession(id.into()))
     }
 
-    /// Close the session `id`.
+    /// Close the session `id`: it leaves the table, its stream (if any) ends and its envs are
+    /// freed.
     pub fn close(&self, id: &str) -> Result<(), ServiceError> {
-        self.map()?
-            .remove(id)
-            .map(|_| ())
-            .ok_or_else(|| ServiceError::UnknownSession(id.into()))
+        let session = {
+            let mut r = self.registry()?;
+            let session = r
+                .map
+                .remove(id)
+                .ok_or_else(|| ServiceError::UnknownSession(id.into()))?;
+            r.envs = r.envs.saturating_sub(session.spec.num_envs as usize);
+            session
+        };
+        session.shut();
+        Ok(())
+    }
+
+    /// Close every session (at shutdown).
+    pub fn close_all(&self) -> usize {
+        let ids: Vec<String> = match self.registry() {
+            Ok(r) => r.map.keys().cloned().collect(),
+            Err(_) => return 0,
+        };
+        ids.iter().filter(|id| self.close(id).is_ok()).count()
     }
 
     /// Close sessions unused for longer than the idle timeout; returns their ids.
     pub fn reap_idle(&self) -> Vec<String> {
         let timeout = Duration::from_secs(self.limits.idle_timeout_s);
-        let Ok(mut map) = self.map() else {
-            return vec![];
+        let idle: Vec<String> = match self.registry() {
+            Ok(r) => r
+                .map
+                .iter()
+                .filter(|(_, s)| !s.streaming.load(Ordering::Acquire) && s.idle_for() > timeout)
+                .map(|(id, _)| id.clone())
+                .collect(),
+            Err(_) => return vec![],
         };
-        let idle: Vec<String> = map
-            .iter()
-            .filter(|(_, s)| !s.streaming.load(Ordering::Acquire) && s.idle_for() > timeout)
-            .map(|(id, _)| id.clone())
-            .collect();
-        for id in &idle {
-            map.remove(id);
-        }
-        idle
+        idle.into_iter()
+            .filter(|id| self.close(id).is_ok())
+            .collect()
     }
 }
