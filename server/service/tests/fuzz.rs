@@ -3,8 +3,11 @@
 //! never answers UNKNOWN, answers INTERNAL only to bytes that do not decode, and never hangs
 //! (every call is bounded). Seeded, ~1300 calls, a few seconds.
 
+mod common;
+
 use std::time::{Duration, Instant};
 
+use common::{RawBytes, RawCodec};
 use rand::{Rng, RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use tokio::sync::oneshot;
@@ -292,52 +295,5 @@ async fn raw_unary(channel: &Channel, method: &'static str, payload: Vec<u8>) ->
     match r {
         Ok(_) => Code::Ok,
         Err(s) => s.code(),
-    }
-}
-
-#[derive(Clone, Debug)]
-struct RawBytes(Vec<u8>);
-
-#[derive(Clone, Copy, Debug, Default)]
-struct RawCodec;
-
-impl tonic::codec::Codec for RawCodec {
-    type Encode = RawBytes;
-    type Decode = RawBytes;
-    type Encoder = RawCodec;
-    type Decoder = RawCodec;
-    fn encoder(&mut self) -> Self::Encoder {
-        RawCodec
-    }
-    fn decoder(&mut self) -> Self::Decoder {
-        RawCodec
-    }
-}
-
-impl tonic::codec::Encoder for RawCodec {
-    type Item = RawBytes;
-    type Error = Status;
-    fn encode(
-        &mut self,
-        item: RawBytes,
-        dst: &mut tonic::codec::EncodeBuf<'_>,
-    ) -> Result<(), Status> {
-        use bytes::BufMut;
-        dst.put_slice(&item.0);
-        Ok(())
-    }
-}
-
-impl tonic::codec::Decoder for RawCodec {
-    type Item = RawBytes;
-    type Error = Status;
-    fn decode(
-        &mut self,
-        src: &mut tonic::codec::DecodeBuf<'_>,
-    ) -> Result<Option<RawBytes>, Status> {
-        use bytes::Buf;
-        let mut v = vec![0u8; src.remaining()];
-        src.copy_to_slice(&mut v);
-        Ok(Some(RawBytes(v)))
     }
 }

@@ -3,9 +3,12 @@
 //! poisoned sessions, evaluation limits, hostile ONNX policies (in the policy worker: this
 //! crate's `unigait-server` binary), stream semantics, drain, and the token.
 
+mod common;
+
 use std::net::SocketAddr;
 use std::time::{Duration, Instant};
 
+use common::{RawBytes, RawCodec};
 use prost::Message;
 use tokio::sync::{mpsc, oneshot};
 use tokio_stream::StreamExt;
@@ -357,52 +360,6 @@ async fn raw_stream(server: &TestServer, payload: &[u8]) -> Option<Code> {
 }
 
 /// Bytes sent as they are, and replies kept as bytes.
-#[derive(Clone, Debug)]
-struct RawBytes(Vec<u8>);
-
-#[derive(Clone, Copy, Debug, Default)]
-struct RawCodec;
-
-impl tonic::codec::Codec for RawCodec {
-    type Encode = RawBytes;
-    type Decode = RawBytes;
-    type Encoder = RawCodec;
-    type Decoder = RawCodec;
-    fn encoder(&mut self) -> Self::Encoder {
-        RawCodec
-    }
-    fn decoder(&mut self) -> Self::Decoder {
-        RawCodec
-    }
-}
-
-impl tonic::codec::Encoder for RawCodec {
-    type Item = RawBytes;
-    type Error = Status;
-    fn encode(
-        &mut self,
-        item: RawBytes,
-        dst: &mut tonic::codec::EncodeBuf<'_>,
-    ) -> Result<(), Status> {
-        use bytes::BufMut;
-        dst.put_slice(&item.0);
-        Ok(())
-    }
-}
-
-impl tonic::codec::Decoder for RawCodec {
-    type Item = RawBytes;
-    type Error = Status;
-    fn decode(
-        &mut self,
-        src: &mut tonic::codec::DecodeBuf<'_>,
-    ) -> Result<Option<RawBytes>, Status> {
-        use bytes::Buf;
-        let mut v = vec![0u8; src.remaining()];
-        src.copy_to_slice(&mut v);
-        Ok(Some(RawBytes(v)))
-    }
-}
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn issue_14_autoreset_off_reports_an_ended_env_once() {
