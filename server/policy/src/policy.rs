@@ -41,6 +41,25 @@ impl PolicySpec {
         }
         Ok(())
     }
+
+    /// Check an [`Policy::act`] call: histories `[batch, history, obs_dim]` and an action buffer
+    /// `[batch, num_actions]`.
+    pub fn check_call(
+        &self,
+        history: &[f32],
+        batch: usize,
+        actions: &[f32],
+    ) -> Result<(), PolicyError> {
+        self.check_batch(history, batch)?;
+        if actions.len() != batch * self.num_actions {
+            return Err(PolicyError::Batch {
+                got: actions.len(),
+                expected: batch * self.num_actions,
+                detail: format!("action buffer [{batch}, {}]", self.num_actions),
+            });
+        }
+        Ok(())
+    }
 }
 
 /// Something that maps observation histories to actions, batched.

@@ -408,14 +408,7 @@ impl Policy for SandboxedPolicy {
 
     fn act(&self, history: &[f32], batch: usize, actions: &mut [f32]) -> Result<(), PolicyError> {
         let s = self.spec;
-        s.check_batch(history, batch)?;
-        if actions.len() != batch * s.num_actions {
-            return Err(PolicyError::Batch {
-                got: actions.len(),
-                expected: batch * s.num_actions,
-                detail: format!("action buffer [{batch}, {}]", s.num_actions),
-            });
-        }
+        s.check_call(history, batch, actions)?;
         if batch == 0 {
             return Ok(());
         }
