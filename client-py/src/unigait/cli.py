@@ -338,7 +338,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_connection_flags(i)
     i.set_defaults(func=_info)
 
-    mujoco_cli.register(sub)  # sim2sim, crosscheck (MuJoCo imported only when they run)
+    mujoco_cli.register(sub)  # sim2sim, crosscheck, mujoco-bench: MuJoCo imported on use
     return p
 
 

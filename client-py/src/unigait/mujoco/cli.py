@@ -1,6 +1,6 @@
-"""``python -m unigait sim2sim`` and ``python -m unigait crosscheck``.
+"""``python -m unigait sim2sim``, ``crosscheck`` and ``mujoco-bench``.
 
-:func:`register` adds both sub-commands to the package's parser; MuJoCo and onnxruntime are
+:func:`register` adds the sub-commands to the package's parser; MuJoCo and onnxruntime are
 imported only when one of them runs (they come with the ``mujoco`` extra).
 """
 
@@ -55,6 +55,12 @@ def _crosscheck(args: argparse.Namespace) -> int:
     return 0
 
 
+def _bench(args: argparse.Namespace) -> int:
+    from unigait.mujoco.bench import main
+
+    return main(args.envs, args.steps, args.solver)
+
+
 def register(subparsers: Any) -> None:
     """Add the ``sim2sim`` and ``crosscheck`` sub-commands to ``subparsers``.
 
@@ -84,3 +90,18 @@ def register(subparsers: Any) -> None:
         "--armature", type=float, help="joint armature for both engines (default nominal 0.02)"
     )
     c.set_defaults(func=_crosscheck)
+
+    b = subparsers.add_parser(
+        "mujoco-bench",
+        help="MuJoCo's side of the simulation benchmark (one JSON line per solver setting)",
+    )
+    b.add_argument("--envs", type=int, default=512)
+    b.add_argument("--steps", type=int, default=300, help="policy steps timed (after 20)")
+    b.add_argument(
+        "--solver",
+        nargs="+",
+        default=["default", "playground"],
+        choices=["default", "playground"],
+        help="solver settings: the cross-check model's, MuJoCo Playground's training settings",
+    )
+    b.set_defaults(func=_bench)

@@ -95,6 +95,7 @@ class PhysicsOptions:
         solref: Contact ``solref`` (time constant s, damping ratio). MuJoCo's default
             (0.02, 1).
         iterations: Solver iterations. 100 (MuJoCo's default).
+        ls_iterations: Line-search iterations of the Newton / CG solvers. 50 (MuJoCo's default).
         integrator: ``"implicitfast"`` (damping implicit) or ``"euler"``.
         impratio: Ratio of frictional to normal constraint impedance. 100, as the menagerie
             Go2: with MuJoCo's default 1 the soft friction lets loaded feet creep, and a robot
@@ -102,6 +103,9 @@ class PhysicsOptions:
             lower than with (near-)rigid Coulomb friction, which rapier and the robot have.
         noslip_iterations: MuJoCo's no-slip post-solver iterations. 0 (impratio does the job;
             10 gives the same standing height within 0.1 mm).
+        position_actuators: Add one MuJoCo position actuator per joint (action order) with
+            the PD law ``clip(kp (ctrl - q) - kd qdot, +-effort)``, so that a batch can step in
+            C with ``ctrl`` = joint targets (the benchmark). False: torques come from outside.
     """
 
     dt: float = 0.005
@@ -118,9 +122,11 @@ class PhysicsOptions:
     cone: str = "elliptic"
     solref: tuple[float, float] = (0.02, 1.0)
     iterations: int = 100
+    ls_iterations: int = 50
     integrator: str = "implicitfast"
     impratio: float = 100.0
     noslip_iterations: int = 0
+    position_actuators: bool = False
 
 
 @dataclass
@@ -203,6 +209,22 @@ def _add_armature_to_links(
     mujoco.mj_setConst(model, mujoco.MjData(model))
 
 
+def _add_position_actuators(
+    spec: mujoco.MjSpec, efforts: dict[str, float], kp: float, kd: float
+) -> None:
+    """One position actuator per joint in action order (see ``position_actuators``)."""
+    for name in JOINT_NAMES:
+        act = spec.add_actuator()
+        act.name = f"{name}_pd"
+        act.trntype = mujoco.mjtTrn.mjTRN_JOINT
+        act.target = name
+        act.gainprm[0] = kp
+        act.biastype = mujoco.mjtBias.mjBIAS_AFFINE
+        act.biasprm[0:3] = [0.0, -kp, -kd]
+        act.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
+        act.forcerange = [-efforts[name], efforts[name]]
+
+
 def build_model(options: PhysicsOptions | None = None, urdf: Path | None = None) -> Go2Model:
     """Compile our Go2 URDF into MuJoCo with ``options`` (default: the server's nominal setup).
 
@@ -230,6 +252,7 @@ def build_model(options: PhysicsOptions | None = None, urdf: Path | None = None)
         "euler": mujoco.mjtIntegrator.mjINT_EULER,
     }[options.integrator]
     spec.option.iterations = options.iterations
+    spec.option.ls_iterations = options.ls_iterations
     spec.option.impratio = options.impratio
     spec.option.noslip_iterations = options.noslip_iterations
 
@@ -272,6 +295,9 @@ def build_model(options: PhysicsOptions | None = None, urdf: Path | None = None)
         g.friction = [options.friction, 0.0, 0.0]
         g.solref = list(options.solref)
         g.margin = 0.0
+
+    if options.position_actuators:
+        _add_position_actuators(spec, efforts, options.kp, options.kd)
 
     floor = spec.worldbody.add_geom()
     floor.name = "floor"
