@@ -58,6 +58,18 @@ def test_runner_trains_logs_checkpoints_and_resumes(tmp_path, capsys):
     resumed.learn(1)
     assert resumed.iteration == 3
 
+    # Staged training: networks and the adaptive learning rate, not the counters or optimiser.
+    runner.ppo._set_lr(2.5e-5)
+    runner.save(tmp_path / "model_staged.pt")
+    staged = OnPolicyRunner(TorchVecEnv(FakeSession(8)), cfg, None)
+    staged.load_weights(tmp_path / "model_staged.pt")
+    assert staged.iteration == 0 and staged.ppo.learning_rate == 2.5e-5
+    assert not staged.ppo.optimizer.state
+    for a, b in zip(
+        runner.actor_critic.parameters(), staged.actor_critic.parameters(), strict=True
+    ):
+        assert torch.equal(a, b)
+
     out = tmp_path / "policy.onnx"
     assert main(["export", "--checkpoint", str(tmp_path / "model_2.pt"), "--out", str(out)]) == 0
     assert "max |onnx - torch|" in capsys.readouterr().out

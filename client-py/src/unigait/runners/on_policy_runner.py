@@ -252,10 +252,19 @@ class OnPolicyRunner:
         torch.save(state, path.with_name("model_latest.pt"))
 
     def load_weights(self, path: str | Path) -> None:
-        """Take the networks of a checkpoint (staged training); optimisers and counters stay."""
+        """Take the networks of a checkpoint (staged training); optimisers and counters stay.
+
+        The adaptive learning rate starts where the checkpoint's run left it, not at the
+        configured initial rate: fresh Adam moments make the first steps sign-like (every weight
+        moves by about the learning rate), and at 1e-3 the first update of a trained policy
+        moved it by a KL of 20 (measured: a quad_flat checkpoint lost most of its velocity
+        tracking in one iteration), where the checkpoint's own rate (~1e-4) keeps it near 0.01.
+        """
         state = torch.load(path, map_location=self.device, weights_only=False)
         self.actor_critic.load_state_dict(state["actor_critic"])
         self.estimator.load_state_dict(state["estimator"])
+        if "learning_rate" in state and self.cfg.ppo.schedule == "adaptive":
+            self.ppo._set_lr(float(state["learning_rate"]))
 
     def load(self, path: str | Path) -> None:
         """Restore networks, optimisers, learning rate and counters from a checkpoint."""
