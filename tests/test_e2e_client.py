@@ -126,3 +126,45 @@ def test_sharding_across_two_servers(server, start_server):
         for act in actions:
             expected.append(np.concatenate([a.step(act[:3]).obs, b.step(act[3:]).obs]))
     np.testing.assert_array_equal(np.stack(got), np.stack(expected))
+
+
+def test_local_server_ends_with_the_process_that_started_it(server_bin, tmp_path):
+    # A learner killed without cleaning up (SIGKILL here) must not leave its server behind.
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    script = (
+        "import sys, time\n"
+        "from unigait.server_process import LocalServer\n"
+        "s = LocalServer(sys.argv[1]); s.start()\n"
+        "print(s._proc.pid, flush=True)\n"
+        "time.sleep(60)\n"
+    )
+    parent = subprocess.Popen(
+        [sys.executable, "-c", script, str(server_bin)], stdout=subprocess.PIPE, text=True
+    )
+    try:
+        assert parent.stdout is not None
+        server_pid = int(parent.stdout.readline())
+        os.kill(server_pid, 0)  # running
+        parent.send_signal(signal.SIGKILL)
+        parent.wait(timeout=10)
+        deadline = time.monotonic() + 10.0
+        while time.monotonic() < deadline:
+            try:
+                os.kill(server_pid, 0)
+            except ProcessLookupError:
+                break
+            # A zombie (exited, not yet reaped by init) counts as gone.
+            with open(f"/proc/{server_pid}/stat") as f:
+                if f.read().split(") ", 1)[1].startswith("Z"):
+                    break
+            time.sleep(0.1)
+        else:
+            os.kill(server_pid, signal.SIGKILL)
+            raise AssertionError("the server outlived the process that started it")
+    finally:
+        parent.kill()
