@@ -1,10 +1,17 @@
 """Servers as Ray actors on a real local two-node Ray cluster (loopback only): placement over
-nodes, training over the pool, a server killed mid-run, and no stray server processes."""
+nodes, training over the pool, a server killed mid-run, no stray server processes, and servers
+with TLS and a bearer token.
+
+Leak checks look only at servers the pools started (their pids, or ``$UNIGAIT_RAY_POOL`` in their
+environment), never at other ``unigait-server`` processes on the machine (a training run, another
+test session)."""
 
 import json
 import logging
 import os
+import shutil
 import signal
+import subprocess
 import time
 from pathlib import Path
 
@@ -17,10 +24,16 @@ ray = pytest.importorskip("ray", reason="the ray extra is not installed")
 
 from ray.cluster_utils import Cluster  # noqa: E402
 from unigait.cli import main  # noqa: E402
-from unigait.client import Client  # noqa: E402
+from unigait.client import Client, UnigaitError  # noqa: E402
 from unigait.config import load_config  # noqa: E402
 from unigait.env import TorchVecEnv  # noqa: E402
-from unigait.ray import ResilientRunner, ServerPool, train_with_pool  # noqa: E402
+from unigait.ray import (  # noqa: E402
+    ResilientRunner,
+    ServerCredentials,
+    ServerPool,
+    train_with_pool,
+)
+from unigait.ray.server_actor import POOL_ID_ENV  # noqa: E402
 from unigait.ray.train import session_config  # noqa: E402
 
 NUM_ENVS = 32
@@ -66,17 +79,23 @@ def _running(pid: int) -> bool:
     return state != "Z"
 
 
-def _servers_of(binary: Path) -> set[int]:
-    """Pids of live ``BINARY serve`` processes on this machine."""
+def pool_servers(pool_id: str | None = None) -> set[int]:
+    """Pids of live servers started by a Ray pool (by ``pool_id``; None: by any pool).
+
+    A pool's actors put ``$UNIGAIT_RAY_POOL`` into their servers' environment, so servers
+    started any other way (a training run sharing the machine) are never counted.
+    """
+    marker = f"{POOL_ID_ENV}=".encode()
     found = set()
     for entry in Path("/proc").iterdir():
         if not entry.name.isdigit():
             continue
         try:
-            argv = (entry / "cmdline").read_bytes().split(b"\0")
-        except OSError:
+            env = (entry / "environ").read_bytes().split(b"\0")
+        except OSError:  # gone, or not ours to read
             continue
-        if argv[0] == str(binary).encode() and b"serve" in argv[1:2] and _running(int(entry.name)):
+        ids = [v[len(marker) :].decode() for v in env if v.startswith(marker)]
+        if ids and (pool_id is None or ids[0] == pool_id) and _running(int(entry.name)):
             found.add(int(entry.name))
     return found
 
@@ -104,7 +123,9 @@ def test_two_servers_on_two_nodes_train_two_iterations(cluster, server_bin, tmp_
         assert history[-1]["total_env_steps"] == 2 * STEPS * NUM_ENVS
         assert [active_sessions(a) for a in pool.addresses] == [0, 0]
         pids = set(pool.pids_seen)
+        assert pool_servers(pool.pool_id) == pids  # the marker finds exactly the pool's servers
     assert_all_gone(pids)
+    assert not pool_servers(pool.pool_id)
     assert (tmp_path / "progress.csv").read_text().splitlines()[0].count("server_restarts") == 1
 
 
@@ -196,7 +217,7 @@ def test_missing_binary_fails_fast_and_names_the_path(cluster, tmp_path):
 
 
 def test_cli_train_ray_leaves_no_servers(cluster, server_bin, tmp_path, capsys):
-    before = _servers_of(server_bin)
+    before = pool_servers()
     code = main(
         [
             "train",
@@ -229,6 +250,184 @@ def test_cli_train_ray_leaves_no_servers(cluster, server_bin, tmp_path, capsys):
     rows = (tmp_path / "progress.csv").read_text().splitlines()
     assert len(rows) == 3 and "server_restarts" in rows[0]
     deadline = time.monotonic() + 20
-    while _servers_of(server_bin) - before and time.monotonic() < deadline:
+    while pool_servers() - before and time.monotonic() < deadline:
         time.sleep(0.1)
-    assert not _servers_of(server_bin) - before, "the CLI left server processes behind"
+    assert not pool_servers() - before, "the CLI left server processes behind"
+
+
+# --- TLS and a bearer token -------------------------------------------------------------------
+
+TOKEN = "t0ken-for-the-ray-pool-test"
+
+
+def _self_signed(cert: Path, key: Path, name: str, san: str) -> None:
+    """A self-signed server certificate (openssl, valid one day), as tests/test_tls_client.py."""
+    subprocess.run(
+        [
+            *("openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "1"),
+            *("-subj", f"/CN={name}", "-addext", f"subjectAltName={san}"),
+            *("-addext", "basicConstraints=critical,CA:FALSE"),
+            *("-addext", "extendedKeyUsage=serverAuth", "-keyout", str(key), "-out", str(cert)),
+        ],
+        check=True,
+        capture_output=True,
+    )
+
+
+@pytest.fixture(scope="module")
+def tls_files(tmp_path_factory):
+    """A self-signed certificate for localhost and 127.0.0.1 (its own CA), key, token file."""
+    if shutil.which("openssl") is None:
+        pytest.skip("the openssl command is needed to make a test certificate")
+    directory = tmp_path_factory.mktemp("ray-tls")
+    cert, key = directory / "cert.pem", directory / "key.pem"
+    _self_signed(cert, key, "localhost", "DNS:localhost,IP:127.0.0.1")
+    token_file = directory / "token"
+    token_file.write_text(TOKEN + "\n")
+    return cert, key, token_file
+
+
+def _server_argv(pid: int) -> list[str]:
+    return [a.decode() for a in Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0") if a]
+
+
+def test_tls_token_pool_trains_and_restarts_over_tls(cluster, server_bin, tls_files, tmp_path):
+    """Credentials shipped in the actors' arguments: the servers speak TLS and check the token,
+    the learner trains two iterations over them, and a killed server comes back with them."""
+    cert, key, _ = tls_files
+    credentials = ServerCredentials.shipped(cert, key, TOKEN)
+    assert TOKEN not in repr(credentials)  # no secret in logs
+    with ServerPool(2, 1, binary=str(server_bin), credentials=credentials) as pool:
+        assert len({m.node_id for m in pool.members}) == 2
+        for m in pool.members:
+            argv = _server_argv(m.pid)
+            assert "--tls-cert" in argv and "--token-file" in argv
+            key_copy = Path(argv[argv.index("--tls-key") + 1])
+            assert not key_copy.exists(), "the shipped key outlived the server's start"
+        with pytest.raises(UnigaitError, match="plaintext"):  # TLS only
+            Client(pool.addresses[0], token=TOKEN, connect_timeout_s=1.5)
+        with Client(pool.addresses[0], root_certificates=cert.read_bytes()) as client:
+            with pytest.raises(UnigaitError) as err:  # TLS without the token
+                client.server_info()
+            assert err.value.code_name == "UNAUTHENTICATED"
+
+        history = train_with_pool(pool, tiny_config(tmp_path))
+        assert [h["iteration"] for h in history] == [1.0, 2.0]
+        assert history[-1]["total_env_steps"] == 2 * STEPS * NUM_ENVS
+
+        # A lost server: the restarted actor gets the credentials again, the shard reconnects
+        # over TLS with the token, and health checks work over TLS.
+        session = pool.open_session(session_config(tiny_config(tmp_path)))
+        actions = np.zeros((NUM_ENVS, 12), np.float32)
+        try:
+            session.step(actions)
+            victim = pool.members[1]
+            os.kill(victim.pid, signal.SIGKILL)
+            cut = session.step(actions)
+            assert cut.truncated[session.offsets[1] :].all()
+            assert session.server_restarts == 1 and pool.restarts == [0, 1]
+            assert "--tls-key" in _server_argv(pool.members[1].pid)
+            assert session.step(actions).obs.shape == (NUM_ENVS, 53)
+        finally:
+            session.close()
+        pids = set(pool.pids_seen)
+    assert_all_gone(pids)
+
+
+def test_wrong_or_missing_token_fails_fast_with_the_servers_answer(cluster, server_bin, tls_files):
+    """Servers whose token is a file on the nodes; a learner with another token, or none, is
+    refused at the pool's start, in seconds, naming the cause."""
+    cert, key, token_file = tls_files
+    node_files = {"cert_file": str(cert), "key_file": str(key), "token_file": str(token_file)}
+    for token, expected in (
+        ("a-wrong-token-of-enough-length", "wrong bearer token"),
+        (None, "needs `authorization: Bearer"),
+    ):
+        credentials = ServerCredentials(**node_files, token=token, ca=cert.read_bytes())
+        pool = ServerPool(1, 1, binary=str(server_bin), credentials=credentials)
+        started = time.monotonic()
+        with pytest.raises(PermissionError, match=expected) as err:
+            pool.start()
+        assert time.monotonic() - started < 30
+        assert "server 0" in str(err.value) and "token" in str(err.value)
+        assert_all_gone(set(pool.pids_seen))
+
+
+def test_untrusted_certificate_fails_fast(cluster, server_bin, tls_files, tmp_path):
+    cert, key, _ = tls_files
+    other = tmp_path / "other.pem"
+    _self_signed(other, tmp_path / "other.key", "other", "DNS:other")
+    credentials = ServerCredentials(
+        cert_file=str(cert), key_file=str(key), token=TOKEN, ca=other.read_bytes()
+    )
+    pool = ServerPool(1, 1, binary=str(server_bin), credentials=credentials)
+    started = time.monotonic()
+    with pytest.raises(ConnectionError, match="CERTIFICATE_VERIFY_FAILED"):
+        pool.start()
+    assert time.monotonic() - started < 30
+    assert_all_gone(set(pool.pids_seen))
+
+
+def test_servers_beyond_loopback_need_tls_and_a_token():
+    with pytest.raises(ValueError, match="requires TLS and a bearer token"):
+        ServerPool(1, 1, host=None)  # each node's IP
+    with pytest.raises(ValueError, match="requires TLS and a bearer token"):
+        ServerPool(1, 1, host="0.0.0.0", credentials=ServerCredentials(token=TOKEN))
+    with pytest.raises(ValueError, match="at least 16"):
+        ServerCredentials(token="short")
+    with pytest.raises(ValueError, match="CA"):
+        ServerCredentials(cert_file="/c", key_file="/k", token=TOKEN)  # nothing to verify with
+    with pytest.raises(ValueError, match="go together"):
+        ServerCredentials(cert_pem=b"PEM", token=TOKEN)
+
+
+def test_cli_train_ray_over_tls_with_token_from_the_environment(
+    cluster, server_bin, tls_files, tmp_path, capsys, monkeypatch
+):
+    """train --ray with the servers' certificate and key as paths on the nodes, the learner's
+    CA (--tls-ca) and $UNIGAIT_TOKEN (shipped to the servers); without the token: refused."""
+    cert, key, _ = tls_files
+    argv = [
+        "train",
+        "--ray",
+        cluster.address,
+        "--servers",
+        "2",
+        "--num-envs",
+        str(NUM_ENVS),
+        "--iterations",
+        "1",
+        "--quiet",
+        "--tls-ca",
+        str(cert),
+        "--server-tls-cert",
+        str(cert),
+        "--server-tls-key",
+        str(key),
+        "--set",
+        f"env.server_bin={json.dumps(str(server_bin))}",
+        "--set",
+        f"runner.num_steps_per_env={STEPS}",
+        "--set",
+        "policy.actor_hidden_dims=[32]",
+        "--set",
+        "policy.critic_hidden_dims=[32]",
+    ]
+    before = pool_servers()
+    monkeypatch.setenv("UNIGAIT_TOKEN", TOKEN)
+    assert main([*argv, "--log-dir", str(tmp_path / "ok")]) == 0
+    out = capsys.readouterr().out
+    assert out.count("TLS + token") == 2 and "2 Ray server actor(s)" in out
+    assert len((tmp_path / "ok" / "progress.csv").read_text().splitlines()) == 2
+
+    # Servers with a token file on the nodes, a learner without a token: a clear refusal.
+    monkeypatch.delenv("UNIGAIT_TOKEN")
+    token_file = tls_files[2]
+    code = main([*argv, "--server-token-file", str(token_file), "--log-dir", str(tmp_path / "no")])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "refused the learner, which sent no token" in err
+    deadline = time.monotonic() + 20
+    while pool_servers() - before and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not pool_servers() - before, "the CLI left server processes behind"

@@ -106,16 +106,30 @@ def _train(args: argparse.Namespace) -> int:
         reward_terms=True,
     )
     if args.ray is not None:  # servers as Ray actors, lost ones replaced: unigait.ray
-        from unigait.ray import train_on_ray
+        from unigait.ray import ServerCredentials, train_on_ray
 
-        train_on_ray(
-            cfg,
-            address=args.ray,
-            num_servers=args.servers,
-            cpus_per_server=args.cpus_per_server,
-            resume=args.resume,
-            init_from=args.init_from,
+        credentials = ServerCredentials.from_files(
+            tls_ca=args.tls_ca,
+            token=_connection(args).get("token"),
+            server_cert=args.server_tls_cert,
+            server_key=args.server_tls_key,
+            server_token_file=args.server_token_file,
+            tls_server_name=args.tls_server_name,
         )
+        try:
+            train_on_ray(
+                cfg,
+                address=args.ray,
+                num_servers=args.servers,
+                cpus_per_server=args.cpus_per_server,
+                resume=args.resume,
+                init_from=args.init_from,
+                credentials=credentials,
+                host=None if args.server_host == "node" else args.server_host,
+            )
+        except (PermissionError, ConnectionError) as err:  # refused token, untrusted certificate
+            print(f"error: {err}", file=sys.stderr)
+            return 2
         return 0
     with _servers(cfg.env.servers, cfg.env.server_bin) as addresses:
         session = open_session(addresses, session_cfg, **_connection(args))
@@ -270,6 +284,31 @@ def build_parser() -> argparse.ArgumentParser:
     )
     t.add_argument("--servers", type=int, default=1, help="with --ray: server actors")
     t.add_argument("--cpus-per-server", type=int, default=1, help="with --ray: CPUs per actor")
+    t.add_argument(
+        "--server-host",
+        default="127.0.0.1",
+        metavar="ADDR",
+        help="with --ray: address the servers bind; 'node': each node's IP (beyond loopback: "
+        "needs --server-tls-cert, --server-tls-key and a token)",
+    )
+    t.add_argument(
+        "--server-tls-cert",
+        metavar="PATH",
+        help="with --ray: the servers' TLS certificate, a path on every node (the learner "
+        "verifies it with --tls-ca)",
+    )
+    t.add_argument("--server-tls-key", metavar="PATH", help="with --ray: its key, on every node")
+    t.add_argument(
+        "--server-token-file",
+        metavar="PATH",
+        help="with --ray: the servers' token file, a path on every node (default: the "
+        "learner's token from --token-file / $UNIGAIT_TOKEN goes to the servers with the actors)",
+    )
+    t.add_argument(
+        "--tls-server-name",
+        metavar="NAME",
+        help="with --ray: check the servers' certificate against NAME, not their IP",
+    )
     t.add_argument("--num-envs", type=int)
     t.add_argument("--iterations", type=int, help="total iterations (runner.max_iterations)")
     t.add_argument("--log-dir")

@@ -7,6 +7,9 @@ protocol:
 * :class:`ServerPool`: N ``unigait-server`` processes as actors with K CPUs each, spread over
   nodes by a placement group, health-checked, restarted when they die, shut down with the pool
   (how the binary reaches the nodes: see :mod:`unigait.ray.pool`);
+* :class:`ServerCredentials`: TLS certificate, key and bearer token of the servers (paths on
+  every node, or shipped in the actors' arguments: see :mod:`unigait.ray.credentials`), and the
+  CA and token of the learner's connections and health checks;
 * :func:`train_on_ray` (``python -m unigait train --ray [ADDRESS] --servers N
   --cpus-per-server K``): PPO over a pool; a lost server's shard moves to the restarted actor,
   its cut episodes count as truncated, and ``server_restarts`` is logged.
@@ -25,16 +28,19 @@ from __future__ import annotations
 
 from typing import Any
 
-from unigait.ray.health import check_health, wait_healthy
+from unigait.ray.credentials import ServerCredentials
+from unigait.ray.health import check_health, probe_health, wait_healthy
 from unigait.ray.pool import ServerPlacement, ServerPool, ship_binary_env
 from unigait.ray.server_actor import ServerActor
 
 __all__ = [
     "ResilientRunner",
     "ServerActor",
+    "ServerCredentials",
     "ServerPlacement",
     "ServerPool",
     "check_health",
+    "probe_health",
     "ship_binary_env",
     "train_on_ray",
     "train_with_pool",

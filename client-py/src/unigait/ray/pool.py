@@ -26,10 +26,15 @@ How the server binary reaches the nodes:
   per-actor ``runtime_env`` (``ServerPool(runtime_env=...)``) may name a remote package instead
   (``{"working_dir": "s3://.../unigait-server.zip"}`` with ``binary="./unigait-server"``).
 
-Networking: the servers bind loopback by default, which serves a learner on the same machine
-(a one-node cluster, the tests' two-node local cluster). Beyond it the server requires TLS and
-a bearer token (``host=None`` with ``--allow-remote --tls-cert --tls-key --token-file`` in
-``extra_args``), and :class:`unigait.client.Client` does not speak TLS yet.
+Networking and credentials: the servers bind loopback by default, which serves a learner on the
+same machine (a one-node cluster, the tests' two-node local cluster). Beyond it (``host=None``:
+each node's IP) the server requires TLS and a bearer token, so the pool refuses to start such
+servers without ``credentials`` (:class:`~unigait.ray.credentials.ServerCredentials`: the
+certificate, key and token as paths on every node, e.g. mounted Kubernetes secrets, or shipped
+in the actors' arguments; see :mod:`unigait.ray.credentials` for the choice) and passes
+``--allow-remote``. The same credentials give the learner's sessions the CA and the token, and
+the health checks the CA. After the servers come up the pool makes one authenticated call to
+each, so a wrong or missing token fails the start at once with the server's answer.
 
 Restarts: each actor has ``max_restarts`` (default: unlimited). When its server dies the actor
 ends itself, Ray starts it again in the same bundle (or, if the node is gone, wherever the
@@ -44,6 +49,7 @@ from __future__ import annotations
 import logging
 import shutil
 import time
+import uuid
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -54,8 +60,12 @@ from ray.util.placement_group import PlacementGroup, placement_group, remove_pla
 from ray.util.scheduling_strategies import PlacementGroupSchedulingStrategy
 
 from unigait.client.closing import ClosesOnExit
+from unigait.client.connection import parse_address
+from unigait.client.errors import UnigaitError
+from unigait.client.session import Client
 from unigait.client.sharded import ShardedSession, open_session
 from unigait.client.types import SessionConfig
+from unigait.ray.credentials import ServerCredentials
 from unigait.ray.health import check_health, wait_healthy
 from unigait.ray.server_actor import ServerActor
 
@@ -117,7 +127,7 @@ class ServerPool(ClosesOnExit):
         cpus_per_server: K CPUs per server: the bundle size and the server's ``--threads``.
         binary: Server binary on the nodes (see the module docstring); None: found there.
         host: Address the servers bind (loopback by default; None: the node's IP, which needs
-            ``--allow-remote --tls-cert --tls-key --token-file`` in ``extra_args``).
+            ``credentials`` with TLS and a token).
         extra_args: More ``serve`` flags (``--max-envs``, ...).
         strategy: Placement strategy (``"SPREAD"``; ``"STRICT_SPREAD"`` insists on distinct
             nodes, ``"PACK"`` fills nodes first).
@@ -129,11 +139,17 @@ class ServerPool(ClosesOnExit):
         echo_output: Copy the servers' output into Ray's worker logs.
         runtime_env: Ray runtime env of the actors (remote URIs only: local directories go to
             ``ray.init``, see :func:`ship_binary_env`).
+        credentials: TLS and token of the servers and of the learner's connections (None:
+            plaintext, no token: loopback only).
+
+    Raises:
+        ValueError: Servers beyond loopback without TLS and a token (the server refuses them).
 
     Attributes:
         members: Where each server runs (updated after restarts).
         restarts: Restarts seen per server (a new server process behind the same actor).
         pids_seen: Every server process id the pool has seen, for leak checks.
+        pool_id: Random id in every server's environment (``$UNIGAIT_RAY_POOL``).
     """
 
     def __init__(
@@ -151,9 +167,22 @@ class ServerPool(ClosesOnExit):
         hung_timeout_s: float = 30.0,
         echo_output: bool = False,
         runtime_env: dict[str, Any] | None = None,
+        credentials: ServerCredentials | None = None,
     ) -> None:
         if num_servers < 1 or cpus_per_server < 1:
             raise ValueError("a pool needs at least one server with at least one CPU")
+        beyond_loopback = host is None or not parse_address(f"[{host}]:0").is_loopback
+        if beyond_loopback and not (
+            credentials is not None and credentials.tls and credentials.server_token
+        ):
+            raise ValueError(
+                f"servers bound to {host or 'the nodes IPs'} are reachable beyond loopback, where "
+                "unigait-server requires TLS and a bearer token: pass credentials="
+                "ServerCredentials(cert_file=..., key_file=..., token=...) (CLI: "
+                "--server-tls-cert, --server-tls-key and --token-file or $UNIGAIT_TOKEN)"
+            )
+        self.credentials = credentials
+        self.pool_id = uuid.uuid4().hex
         self.num_servers = num_servers
         self.cpus_per_server = cpus_per_server
         self.members: list[ServerPlacement] = []
@@ -222,6 +251,8 @@ class ServerPool(ClosesOnExit):
                     self._extra_args,
                     self._startup_timeout_s,
                     self._echo,
+                    self.credentials,
+                    self.pool_id,
                 )
                 for i in range(self.num_servers)
             ]
@@ -231,7 +262,8 @@ class ServerPool(ClosesOnExit):
             self.members = [ServerPlacement.from_info(i, info) for i, info in enumerate(infos)]
             for m in self.members:
                 self.pids_seen.add(m.pid)
-                wait_healthy(m.address, self._startup_timeout_s)
+                wait_healthy(m.address, self._startup_timeout_s, **self._health_options())
+                self._check_access(m)
                 log.info(
                     "server %d: %s (pid %d) on node %s (%s), %d CPU(s)",
                     m.index,
@@ -245,6 +277,34 @@ class ServerPool(ClosesOnExit):
             self.close()
             raise
         return self.addresses
+
+    def _health_options(self) -> dict[str, Any]:
+        return dict(self.credentials.health_options()) if self.credentials else {}
+
+    def connection_options(self) -> dict[str, Any]:
+        """The learner's :class:`~unigait.client.Client` keyword arguments (CA, token)."""
+        return dict(self.credentials.connection_options()) if self.credentials else {}
+
+    def _check_access(self, member: ServerPlacement, timeout_s: float = 10.0) -> None:
+        """One authenticated call, so that a wrong or missing token fails here, not mid-run.
+
+        Raises:
+            PermissionError: The server refused the learner (UNAUTHENTICATED), with its words.
+        """
+        try:
+            with Client(
+                member.address, connect_timeout_s=timeout_s, **self.connection_options()
+            ) as client:
+                client.server_info()
+        except UnigaitError as err:
+            if err.code_name != "UNAUTHENTICATED":
+                raise
+            given = "a token" if self.connection_options().get("token") else "no token"
+            raise PermissionError(
+                f"server {member.index} ({member.address}) refused the learner, which sent "
+                f"{given}: {err.details} (the learner's token must be the servers' token: "
+                "--token-file / $UNIGAIT_TOKEN, ServerCredentials.token)"
+            ) from err
 
     def info(self, index: int, timeout_s: float | None = None) -> dict[str, Any]:
         """:meth:`ServerActor.info` of server ``index`` (waits for a restarting actor)."""
@@ -278,7 +338,10 @@ class ServerPool(ClosesOnExit):
             except ray.exceptions.ActorUnavailableError:  # restarting; try again shortly
                 time.sleep(0.2)
                 continue
-            if info["alive"] and check_health(info["address"], timeout_s=min(2.0, remaining)):
+            healthy = info["alive"] and check_health(
+                info["address"], timeout_s=min(2.0, remaining), **self._health_options()
+            )
+            if healthy:
                 break
             if info["alive"]:  # running but not answering: hung, or its node is cut off
                 silent_since = silent_since or time.monotonic()
@@ -330,6 +393,7 @@ class ServerPool(ClosesOnExit):
             connect_timeout_s=connect_timeout_s,
             reconnect=self.replacement,
             step_timeout_s=step_timeout_s,
+            **self.connection_options(),
         )
         assert isinstance(session, ShardedSession)
         return session

@@ -28,9 +28,13 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from unigait.client.connection import parse_address
+from unigait.ray.credentials import ServerCredentials, remove_private_dir
 from unigait.server_process import default_server_bin
 
 _LISTENING = re.compile(r"listening on (\S+):(\d+)")
+#: Environment variable naming the pool that started a server (for leak checks by process).
+POOL_ID_ENV = "UNIGAIT_RAY_POOL"
 _PR_SET_PDEATHSIG = 1
 try:  # looked up once here: the child must not dlopen or dlsym between fork and exec
     _PRCTL: Any = ctypes.CDLL(None, use_errno=True).prctl if sys.platform == "linux" else None
@@ -75,16 +79,19 @@ class ServerActor:
     Args:
         binary: See :func:`resolve_binary` (resolved on the actor's node).
         threads: Env worker threads of the server (``--threads``): the actor's CPUs.
-        host: Address to bind (``"127.0.0.1"``: loopback); None binds the node's IP, which the
-            server allows only with ``--allow-remote --tls-cert --tls-key --token-file`` in
-            ``extra_args``.
+        host: Address to bind (``"127.0.0.1"``: loopback); None binds the node's IP. Beyond
+            loopback the actor adds ``--allow-remote``, and the server then insists on TLS and
+            a token (``credentials``).
         extra_args: More ``serve`` flags (``--max-envs``, ``--idle-timeout``, ...).
         startup_timeout_s: How long to wait for the ``listening on`` line.
         echo_output: Copy the server's output to the actor's stdout (Ray's worker log, and the
             driver's console when ``log_to_driver``).
+        credentials: TLS certificate, key and token (paths on this node, or shipped contents,
+            written to a private directory and deleted once the server has read them).
+        pool_id: Put in the server's environment as ``$UNIGAIT_RAY_POOL`` (leak checks).
 
     Raises:
-        FileNotFoundError: No binary.
+        FileNotFoundError: No binary, or a credentials file is not on this node.
         RuntimeError: The server exited or said nothing in time (the actor's creation fails,
             and Ray does not restart an actor whose constructor raised).
     """
@@ -97,6 +104,8 @@ class ServerActor:
         extra_args: Sequence[str] = (),
         startup_timeout_s: float = 60.0,
         echo_output: bool = False,
+        credentials: ServerCredentials | None = None,
+        pool_id: str = "",
     ) -> None:
         import ray
 
@@ -104,15 +113,25 @@ class ServerActor:
         self._node_ip = ray.util.get_node_ip_address()
         self._binary = resolve_binary(binary)
         bind = host if host is not None else self._node_ip
+        bind_addr = f"[{bind}]:0" if ":" in bind else f"{bind}:0"
+        remote = not parse_address(bind_addr).is_loopback
+        self._tls = credentials is not None and credentials.tls
+        auth: list[str] = []
+        self._secrets: Path | None = None
+        if credentials is not None:
+            auth, self._secrets = credentials.server_flags()
         self._cmd = [
             str(self._binary),
             "serve",
             "--addr",
-            f"{bind}:0",
+            bind_addr,
             "--threads",
             str(threads),
+            *(["--allow-remote"] if remote and "--allow-remote" not in extra_args else []),
+            *auth,
             *extra_args,
         ]
+        self._env = {**os.environ, POOL_ID_ENV: pool_id} if pool_id else None
         self._threads = threads
         self._echo = echo_output
         self.output: deque[str] = deque(maxlen=200)
@@ -138,6 +157,7 @@ class ServerActor:
                 stdout=subprocess.PIPE,
                 stderr=subprocess.STDOUT,
                 stdin=subprocess.DEVNULL,
+                env=self._env,
                 text=True,
                 bufsize=1,
                 preexec_fn=_die_with_parent,
@@ -145,6 +165,7 @@ class ServerActor:
         except OSError as err:
             self._spawn_error = err
             self._ready.set()
+            remove_private_dir(self._secrets)
             return
         self._proc = proc
         assert proc.stdout is not None
@@ -159,8 +180,10 @@ class ServerActor:
                 if host in ("0.0.0.0", "[::]", "::"):
                     host = self._node_ip
                 self._address = f"{host}:{m.group(2)}"
+                remove_private_dir(self._secrets)  # read at start: no longer needed
                 self._ready.set()
         code = proc.wait()
+        remove_private_dir(self._secrets)
         self._ready.set()
         if self._address and not self._stopping.is_set():
             print(
@@ -175,11 +198,13 @@ class ServerActor:
         """Where the server runs.
 
         Returns:
-            ``address``, ``pid``, ``node_id``, ``node_ip``, ``threads``, ``alive``, ``binary``.
+            ``address``, ``pid``, ``node_id``, ``node_ip``, ``threads``, ``alive``, ``binary``,
+            ``tls``.
         """
         proc = self._proc
         return {
             "address": self._address,
+            "tls": self._tls,
             "pid": proc.pid if proc is not None else 0,
             "node_id": self._node_id,
             "node_ip": self._node_ip,

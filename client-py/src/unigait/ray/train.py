@@ -8,6 +8,13 @@ simulation runs in the pool's server actors. Python API::
 
     train_on_ray(load_config(None, ["env.num_envs=4096"]), address="auto", num_servers=8,
                  cpus_per_server=4)
+
+    # servers on the nodes' IPs, TLS + token (files mounted on every node; the learner's CA)
+    train_on_ray(cfg, address="auto", num_servers=8, cpus_per_server=4, host=None,
+                 credentials=ServerCredentials(cert_file="/etc/unigait/tls/tls.crt",
+                                               key_file="/etc/unigait/tls/tls.key",
+                                               token_file="/etc/unigait/token/token",
+                                               token=token, ca=ca_pem))
 """
 
 from __future__ import annotations
@@ -24,6 +31,7 @@ import torch
 from unigait.client.types import SessionConfig
 from unigait.config import TrainConfig
 from unigait.env import TorchVecEnv
+from unigait.ray.credentials import ServerCredentials
 from unigait.ray.pool import ServerPool, ship_binary_env
 from unigait.runners import OnPolicyRunner
 
@@ -110,6 +118,8 @@ def train_on_ray(
     init_from: str | Path | None = None,
     ship_binary: str | Path | None = None,
     pool_options: dict[str, Any] | None = None,
+    credentials: ServerCredentials | None = None,
+    host: str | None = "127.0.0.1",
 ) -> list[dict[str, float]]:
     """Start a server pool on a Ray cluster, train over it, shut it down.
 
@@ -125,6 +135,9 @@ def train_on_ray(
         ship_binary: Upload this local server binary to the nodes with the job (see
             :func:`unigait.ray.pool.ship_binary_env`); needs this call to connect to Ray.
         pool_options: More :class:`ServerPool` arguments (``extra_args``, ``strategy``, ...).
+        credentials: TLS and token of the servers and the learner (see
+            :class:`~unigait.ray.credentials.ServerCredentials`).
+        host: Address the servers bind (None: each node's IP, which needs ``credentials``).
 
     Returns:
         The logged scalars of each iteration.
@@ -137,6 +150,9 @@ def train_on_ray(
         logging.basicConfig(stream=sys.stderr, format="%(name)s: %(message)s")
     connected_here = not ray.is_initialized()
     options = dict(pool_options or {})
+    options.setdefault("credentials", credentials)
+    options.setdefault("host", host)
+    ServerPool(num_servers, cpus_per_server, **options)  # check the arguments before Ray starts
     if cfg.env.server_bin:
         options.setdefault("binary", cfg.env.server_bin)
     with tempfile.TemporaryDirectory(prefix="unigait-ship-") as staging:
@@ -149,8 +165,15 @@ def train_on_ray(
             ray.init(address=address or None, runtime_env=runtime_env)
     try:
         with ServerPool(num_servers, cpus_per_server, **options) as pool:
+            security = "plaintext"
+            if pool.credentials is not None:
+                security = "TLS" if pool.credentials.tls else "plaintext"
+                security += " + token" if pool.credentials.server_token else ""
             for m in pool.members:
-                print(f"server {m.index}: {m.address} on node {m.node_ip} ({m.node_id[:12]})")
+                print(
+                    f"server {m.index}: {m.address} on node {m.node_ip} ({m.node_id[:12]}), "
+                    f"{security}"
+                )
             history = train_with_pool(pool, cfg, resume=resume, init_from=init_from)
             restarts = sum(pool.restarts)
             if restarts:
