@@ -21,6 +21,10 @@ echo "== the shipped policy (assets/policies/quad_flat): velocity tracking on fo
 "$VENV/bin/python" -m unigait evaluate --policy assets/policies/quad_flat/policy.onnx \
   --scenario tracking_quad --num-envs 16 --seed 1000 \
   --report "$OUT/shipped_quad_flat_eval.json" --record "$OUT/shipped_quad_flat.rrd"
+# The same policy through a mode switch: what the recording layout shows at a transition (README).
+"$VENV/bin/python" -m unigait evaluate --policy assets/policies/quad_flat/policy.onnx \
+  --scenario transition_quad_to_biped --num-envs 16 --seed 1000 \
+  --record "$OUT/shipped_quad_flat_transition.rrd"
 
 echo "== training: $ITERATIONS iterations x $ENVS envs x 24 steps (PPO + concurrent estimator)"
 "$VENV/bin/python" -m unigait train --iterations "$ITERATIONS" --num-envs "$ENVS" --log-dir "$OUT" --quiet
@@ -31,7 +35,8 @@ echo "== evaluating on the server and recording a rollout"
   --num-envs 16 --report "$OUT/eval.json" --record "$OUT/rollout.rrd"
 
 echo
-echo "Shipped policy: $OUT/shipped_quad_flat_eval.json, $OUT/shipped_quad_flat.rrd"
+echo "Shipped policy: $OUT/shipped_quad_flat_eval.json, $OUT/shipped_quad_flat.rrd,"
+echo "  $OUT/shipped_quad_flat_transition.rrd (pictures: scripts/render_recording.py, see README)"
 echo "Training curves: $OUT/training.png (scalars in $OUT/*.csv); evaluation: $OUT/eval.json"
 echo "Open the rollout with the rerun viewer (rerun-sdk 0.36, installed in the venv):"
 echo "  $VENV/bin/rerun $OUT/rollout.rrd"

@@ -239,8 +239,90 @@ pub async fn run_record(client: &mut Client, args: &RecordArgs) -> Result<()> {
     if reply.recording_rrd.is_empty() {
         anyhow::bail!("the server sent no recording");
     }
-    let rrd = reply.recording_rrd;
-    let table = format_table(&reply.metrics);
+    deliver(
+        reply.recording_rrd.into(),
+        output,
+        &format_table(&reply.metrics),
+    )
+    .await
+}
+
+/// `unigait replay`: send or serve a saved recording (e.g. the main job's
+/// `runs/main/rollout.rrd`), its viewer layout included, to viewers.
+#[derive(Clone, Debug, clap::Args)]
+#[command(group(
+    clap::ArgGroup::new("output")
+        .required(true)
+        .args(["connect", "serve"])
+))]
+pub struct ReplayArgs {
+    /// The `.rrd` recording.
+    pub file: PathBuf,
+    /// Send it to a running viewer (bare --connect: rerun+http://127.0.0.1:9876/proxy).
+    #[arg(long, value_name = "URL", num_args = 0..=1, default_missing_value = DEFAULT_VIEWER_URL)]
+    pub connect: Option<String>,
+    /// Serve it for viewers to join (as `record --serve`).
+    #[arg(
+        long,
+        value_name = "ADDR:PORT",
+        num_args = 0..=1,
+        default_missing_value = "127.0.0.1:9876",
+        value_parser = parse_serve_addr
+    )]
+    pub serve: Option<SocketAddr>,
+    /// With --serve: stop serving after this many seconds (default: until Ctrl-C).
+    #[arg(
+        long,
+        value_name = "SECONDS",
+        requires = "serve",
+        conflicts_with = "connect",
+        value_parser = parse_seconds
+    )]
+    pub serve_for: Option<Duration>,
+    /// With --connect: send the rollout up to this policy step only; the viewer, following
+    /// the stream, stops there (scripts/render_recording.py photographs it).
+    #[arg(long, value_name = "STEP", requires = "connect")]
+    pub until_step: Option<i64>,
+}
+
+impl ReplayArgs {
+    /// The output the flags ask for (clap makes exactly one of them present).
+    pub fn output(&self) -> Result<RecordOutput> {
+        if let Some(url) = &self.connect {
+            return Ok(RecordOutput::Connect(url.clone()));
+        }
+        if let Some(addr) = self.serve {
+            return Ok(RecordOutput::Serve {
+                options: ServeOptions {
+                    addr,
+                    ..ServeOptions::default()
+                },
+                until: self.serve_for,
+            });
+        }
+        anyhow::bail!("give one of --connect, --serve")
+    }
+}
+
+/// `unigait replay`: send or serve a saved recording. Needs no simulation server.
+pub async fn run_replay(args: &ReplayArgs) -> Result<()> {
+    let output = args.output()?;
+    let rrd = std::fs::read(&args.file)
+        .with_context(|| format!("cannot read `{}`", args.file.display()))?;
+    if let (Some(last), RecordOutput::Connect(url)) = (args.until_step, &output) {
+        let to = url.clone();
+        tokio::task::spawn_blocking(move || {
+            unigait_record::send_rrd_until(&rrd, &to, CONNECT_TIMEOUT, Some(last))
+        })
+        .await??;
+        eprintln!("sent the recording up to step {last} to the viewer at {url}");
+        return Ok(());
+    }
+    deliver(rrd, output, "").await
+}
+
+/// Write, send or serve a recording; `table` (the metrics) goes to stdout.
+async fn deliver(rrd: Vec<u8>, output: RecordOutput, table: &str) -> Result<()> {
     match output {
         RecordOutput::File(out) => {
             std::fs::write(&out, &rrd)
@@ -361,6 +443,37 @@ mod test {
             &["--serve", "--serve-for", "soon"],
             &["--serve", "--serve-memory-limit", "lots"],
         ] {
+            assert!(parse(bad).is_err(), "{bad:?} accepted");
+        }
+    }
+
+    #[derive(Debug, Parser)]
+    struct ReplayCli {
+        #[command(flatten)]
+        replay: ReplayArgs,
+    }
+
+    #[test]
+    fn replay_outputs_from_flags() {
+        let parse = |flags: &[&str]| -> Result<RecordOutput> {
+            let argv = ["unigait", "rollout.rrd"];
+            ReplayCli::try_parse_from(argv.iter().chain(flags))?
+                .replay
+                .output()
+        };
+        assert_eq!(
+            parse(&["--connect"]).unwrap(),
+            RecordOutput::Connect(DEFAULT_VIEWER_URL.into())
+        );
+        assert_eq!(
+            parse(&["--serve", "0", "--serve-for", "1"]).unwrap(),
+            serve(
+                "127.0.0.1:0",
+                Some(Duration::from_secs(1)),
+                ServeOptions::default().memory_limit
+            )
+        );
+        for bad in [&[][..], &["--connect", "--serve"], &["--serve-for", "1"]] {
             assert!(parse(bad).is_err(), "{bad:?} accepted");
         }
     }

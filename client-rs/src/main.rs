@@ -113,6 +113,8 @@ enum Command {
     Eval(unigait_client::eval::EvalArgs),
     /// Evaluate a policy and write, send or serve a rerun recording of the rollout.
     Record(unigait_client::eval::RecordArgs),
+    /// Send a saved rerun recording to a viewer or serve it (no simulation server needed).
+    Replay(unigait_client::eval::ReplayArgs),
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum, Serialize, PartialEq, Eq)]
@@ -200,6 +202,9 @@ async fn main() -> Result<()> {
         .with_writer(std::io::stderr)
         .init();
     let cli = Cli::parse();
+    if let Command::Replay(args) = &cli.command {
+        return unigait_client::eval::run_replay(args).await;
+    }
     let mut client = connect(&cli).await?;
     match cli.command {
         Command::Info { envs, overrides } => {
@@ -252,6 +257,8 @@ async fn main() -> Result<()> {
         }
         Command::Eval(args) => unigait_client::eval::run_eval(&mut client, &args).await?,
         Command::Record(args) => unigait_client::eval::run_record(&mut client, &args).await?,
+        // Handled before connecting.
+        Command::Replay(_) => {}
         Command::Check => {
             let outcomes = compliance::run_all(&client).await;
             let failed = outcomes.iter().filter(|o| !o.passed).count();

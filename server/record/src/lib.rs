@@ -17,21 +17,31 @@
 //! tower-http, re_grpc_server) are used.
 //! rerun uses glam 0.30 and rapier glam 0.33: everything crosses as plain arrays.
 //!
-//! Entity layout: `world/robot/<body>` (pose per step) with `world/robot/<body>/geom<k>`
-//! (static shape and its pose in the body frame), `world/terrain`, `world/feet`,
-//! `world/command`, `world/velocity`; scalars under `reward/`, `command/`, `state/`,
-//! `contact/`, `mode`; text events under `events`.
+//! Entity layout: the followed env at `world/robot/<body>` (pose per step) with
+//! `world/robot/<body>/geom<k>` (static shape and its pose in the body frame), `world/terrain`,
+//! `world/feet`, `world/command`, `world/velocity`; the other recorded envs (up to
+//! [`RecordOptions::max_envs`]) at `world/envs/<index>/{robot/<body>,feet,terrain}`; scalars
+//! under `reward/` (every term, and `reward/active/` for the current mode's task terms),
+//! `command/`, `state/` (heading-frame velocity, pitch, the upright threshold, base height),
+//! `contact/`, `mode`; the gait diagram as state lanes `gait/FL` ... `gait/RR` and `gait/task_mode`;
+//! text events under `events` (followed env) and `outcome/env<index>` (falls, head hits,
+//! time-outs, mode switches, final outcome per recorded env).
+//!
+//! Every recording carries a viewer layout ([`blueprint`]): a 3D view following the robot, the
+//! plots that tell the story and the gait diagram; rerun's viewer activates it on load.
 #![warn(missing_docs)]
 
+pub mod blueprint;
 mod error;
 mod recorder;
 mod serve;
 mod terrain_mesh;
 
 pub use error::RecordError;
-pub use recorder::{APPLICATION_ID, RecordOptions, Recorder, entity};
+pub use recorder::{APPLICATION_ID, FOOT_NAMES, RecordOptions, Recorder, entity};
 pub use rerun::MemoryLimit;
 pub use serve::{
     DEFAULT_MEMORY_LIMIT_BYTES, DEFAULT_SERVE_PORT, ServeOptions, Served, proxy_url, send_rrd,
+    send_rrd_until,
 };
-pub use terrain_mesh::{TerrainMesh, terrain_mesh};
+pub use terrain_mesh::{FLAT_TILE_M, TerrainMesh, terrain_mesh};

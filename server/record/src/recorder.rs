@@ -1,15 +1,18 @@
-//! The recorder: static scene once, then one row of poses and series per policy step.
+//! The recorder: static scene and viewer layout once, then one row of poses and series per
+//! policy step.
 
 use std::path::Path;
 
 use rerun::{
     Arrows3D, Boxes3D, Capsules3D, Color, Ellipsoids3D, FillMode, Mesh3D, Points3D, Quaternion,
-    RecordingStream, RecordingStreamBuilder, Scalars, TextLog, Transform3D, ViewCoordinates,
+    RecordingStream, RecordingStreamBuilder, Scalars, SeriesLines, StateChange, StateConfiguration,
+    TextLog, TextLogLevel, Transform3D, ViewCoordinates,
 };
 use unigait_sim::env::VecEnv;
-use unigait_sim::robot::{ColliderRole, NUM_FEET, Shape};
-use unigait_sim::task::{RewardTerm, euler_pitch, heading_direction};
+use unigait_sim::robot::{ColliderRole, NUM_FEET, RobotModel, Shape};
+use unigait_sim::task::{RewardTerm, TermGroup, euler_pitch, heading_direction, to_heading_frame};
 
+use crate::blueprint::{Layout, LayoutEnv, LayoutInput};
 use crate::error::RecordError;
 use crate::serve::{ServeOptions, Served, proxy_url, serve_stream};
 use crate::terrain_mesh::terrain_mesh;
@@ -21,24 +24,37 @@ pub const APPLICATION_ID: &str = "unigait";
 pub mod entity {
     /// Root of the 3D scene (Z up).
     pub const WORLD: &str = "world";
-    /// Parent of the robot's bodies: `world/robot/<body>`.
+    /// Parent of the followed env's bodies: `world/robot/<body>`.
     pub const ROBOT: &str = "world/robot";
-    /// The terrain mesh.
+    /// The terrain mesh around the followed env.
     pub const TERRAIN: &str = "world/terrain";
-    /// Feet, coloured by contact.
+    /// Feet of the followed env, coloured by contact.
     pub const FEET: &str = "world/feet";
     /// Commanded velocity (world frame) as an arrow from the base.
     pub const COMMAND: &str = "world/command";
     /// Measured base velocity as an arrow from the base.
     pub const VELOCITY: &str = "world/velocity";
+    /// Parent of the other recorded envs: `world/envs/<index>/{robot/<body>,feet,terrain}`.
+    pub const OTHER_ENVS: &str = "world/envs";
     /// Total reward.
     pub const REWARD_TOTAL: &str = "reward/total";
+    /// Parent of the active mode's task terms, `reward/active/<term>`: each logged only while
+    /// its mode is the current one (the same values as `reward/<term>`).
+    pub const REWARD_ACTIVE: &str = "reward/active";
     /// Task mode (1 biped, 2 quad).
     pub const MODE: &str = "mode";
-    /// Mode changes and episode ends.
+    /// The gait diagram: `gait/<foot>` (stance / swing) and `gait/task_mode` (quad / biped) as
+    /// state lanes, logged at each change.
+    pub const GAIT: &str = "gait";
+    /// Mode lane of the gait diagram (named to sort below the feet, which read top down).
+    pub const GAIT_MODE: &str = "gait/task_mode";
+    /// The followed env's mode changes and episode ends.
     pub const EVENTS: &str = "events";
+    /// Per recorded env: falls, head hits, time-outs, mode switches and the final outcome,
+    /// `outcome/env<index>`.
+    pub const OUTCOME: &str = "outcome";
 
-    /// Entity of body `name`.
+    /// Entity of body `name` of the followed env.
     pub fn body(name: &str) -> String {
         format!("{ROBOT}/{name}")
     }
@@ -47,17 +63,42 @@ pub mod entity {
     pub fn reward(term: &str) -> String {
         format!("reward/{term}")
     }
+
+    /// Series of task term `term` while its mode is active.
+    pub fn reward_active(term: &str) -> String {
+        format!("{REWARD_ACTIVE}/{term}")
+    }
+
+    /// Gait lane of foot `foot` (`FL`, `FR`, `RL`, `RR`).
+    pub fn gait(foot: &str) -> String {
+        format!("{GAIT}/{foot}")
+    }
+
+    /// Subtree of another recorded env (not the followed one).
+    pub fn other_env(index: usize) -> String {
+        format!("{OTHER_ENVS}/{index}")
+    }
+
+    /// Outcome events of recorded env `index`.
+    pub fn outcome(index: usize) -> String {
+        format!("{OUTCOME}/env{index}")
+    }
 }
 
 /// Foot names in leg order.
-const FOOT_NAMES: [&str; NUM_FEET] = ["FL", "FR", "RL", "RR"];
+pub const FOOT_NAMES: [&str; NUM_FEET] = ["FL", "FR", "RL", "RR"];
 
 /// What to record.
 #[derive(Clone, Debug, PartialEq)]
 pub struct RecordOptions {
-    /// The env followed.
+    /// The env followed: its robot, series, gait diagram and camera.
     pub env_index: usize,
-    /// Half side of the terrain square drawn around the env's spawn point (m). Default 6.
+    /// Envs drawn: the followed env and up to `max_envs - 1` others (the first indices of the
+    /// batch), each a tab of the 3D view with its own camera, plus an overview of them all.
+    /// Default 4; 1 draws the followed env only. The others cost a robot's poses and its
+    /// feet per step (about a fifth of the followed env's data) and a terrain mesh.
+    pub max_envs: usize,
+    /// Half side of the terrain square drawn around each env's spawn point (m). Default 6.
     pub terrain_half_window_m: f32,
     /// Recording name shown in the viewer.
     pub name: String,
@@ -67,13 +108,58 @@ impl Default for RecordOptions {
     fn default() -> Self {
         Self {
             env_index: 0,
+            max_envs: 4,
             terrain_half_window_m: 6.0,
             name: "rollout".into(),
         }
     }
 }
 
-/// Records one env of a batch, step by step.
+/// Entity paths of one recorded env's 3D scene.
+#[derive(Clone, Debug)]
+struct ScenePaths {
+    robot: String,
+    feet: String,
+    terrain: String,
+}
+
+impl ScenePaths {
+    fn followed() -> Self {
+        Self {
+            robot: entity::ROBOT.into(),
+            feet: entity::FEET.into(),
+            terrain: entity::TERRAIN.into(),
+        }
+    }
+
+    fn other(index: usize) -> Self {
+        let root = entity::other_env(index);
+        Self {
+            robot: format!("{root}/robot"),
+            feet: format!("{root}/feet"),
+            terrain: format!("{root}/terrain"),
+        }
+    }
+
+    fn body(&self, name: &str) -> String {
+        format!("{}/{name}", self.robot)
+    }
+}
+
+/// What the recorder remembers of one recorded env between steps.
+#[derive(Clone, Debug)]
+struct Tracked {
+    index: usize,
+    paths: ScenePaths,
+    mode: u8,
+    head_contact: bool,
+    falls: u32,
+    head_hits: u32,
+    time_outs: u32,
+    mode_switches: u32,
+}
+
+/// Records envs of a batch, step by step.
 pub struct Recorder {
     rec: RecordingStream,
     memory: Option<rerun::sink::MemorySinkStorage>,
@@ -81,6 +167,10 @@ pub struct Recorder {
     served: Option<std::net::SocketAddr>,
     options: RecordOptions,
     last_mode: Option<u8>,
+    /// Stance per foot of the followed env at the last step (the gait lanes change there).
+    last_stance: Option<[bool; NUM_FEET]>,
+    /// The recorded envs, the followed one first (set by `begin`).
+    tracked: Vec<Tracked>,
     steps: u64,
 }
 
@@ -109,14 +199,71 @@ fn quat(q: impl Into<[f32; 4]>) -> Quaternion {
     Quaternion::from_xyzw(q.into())
 }
 
-fn role_color(role: ColliderRole) -> Color {
+/// Colour of a collider by link group: trunk and head blue, hips grey, thighs and calves by
+/// side (left warm, right cool, so diagonal leg pairs of a trot read), feet near black.
+fn link_color(body: &str, role: ColliderRole) -> Color {
+    let left = body.starts_with("FL") || body.starts_with("RL");
     match role {
-        ColliderRole::Trunk | ColliderRole::Head => Color::from_rgb(70, 110, 170),
-        ColliderRole::Penalised => Color::from_rgb(225, 140, 60),
-        ColliderRole::Foot(_) => Color::from_rgb(40, 40, 40),
-        ColliderRole::Other => Color::from_rgb(150, 150, 150),
+        ColliderRole::Trunk => Color::from_rgb(60, 90, 150),
+        ColliderRole::Head => Color::from_rgb(95, 130, 190),
+        ColliderRole::Foot(_) => Color::from_rgb(35, 35, 35),
+        ColliderRole::Penalised | ColliderRole::Other => {
+            if body.ends_with("_hip") {
+                Color::from_rgb(115, 115, 120)
+            } else if body.ends_with("_thigh") {
+                if left {
+                    Color::from_rgb(225, 135, 50)
+                } else {
+                    Color::from_rgb(40, 155, 165)
+                }
+            } else if body.ends_with("_calf") {
+                if left {
+                    Color::from_rgb(240, 185, 120)
+                } else {
+                    Color::from_rgb(120, 205, 210)
+                }
+            } else {
+                Color::from_rgb(150, 150, 150)
+            }
+        }
     }
 }
+
+fn mode_name(code: u8) -> &'static str {
+    match code {
+        1 => "biped",
+        2 => "quad",
+        _ => "unknown",
+    }
+}
+
+/// Whether a task term belongs to mode `code` (1 biped, 2 quad).
+fn term_of_mode(term: RewardTerm, code: u8) -> bool {
+    match term.group() {
+        TermGroup::Common => false,
+        TermGroup::Quad => code == 2,
+        TermGroup::Biped | TermGroup::BipedUpright => code == 1,
+    }
+}
+
+/// Names and colours of the plotted series (commands thin and pale, measurements bold in the
+/// same hue), so command and measurement pair up at a glance.
+const SERIES_STYLE: [(&str, &str, [u8; 3], f32); 9] = [
+    ("command/vx", "vx command", [150, 180, 255], 1.5),
+    ("state/vx", "vx measured", [30, 80, 220], 2.5),
+    ("command/vy", "vy command", [150, 220, 150], 1.5),
+    ("state/vy", "vy measured", [20, 140, 40], 2.5),
+    ("command/wz", "yaw rate command", [230, 160, 230], 1.5),
+    ("state/yaw_rate", "yaw rate measured", [150, 40, 160], 2.5),
+    ("state/pitch", "pitch", [200, 60, 40], 2.5),
+    (
+        "state/upright_pitch",
+        "upright threshold",
+        [120, 120, 120],
+        1.5,
+    ),
+    ("state/base_height", "base height", [40, 120, 200], 2.5),
+];
 
 impl Recorder {
     fn builder(options: &RecordOptions) -> RecordingStreamBuilder {
@@ -176,6 +323,8 @@ impl Recorder {
             served: None,
             options,
             last_mode: None,
+            last_stance: None,
+            tracked: Vec::new(),
             steps: 0,
         }
     }
@@ -206,58 +355,136 @@ impl Recorder {
         Ok(i)
     }
 
-    /// Log the static scene (axes, robot shapes, terrain) and the state at step 0.
+    /// The indices recorded for a batch of `num_envs`: `followed` first, then the lowest
+    /// others, `max_envs` in all.
+    fn recorded_envs(&self, followed: usize, num_envs: usize) -> Vec<usize> {
+        let others = (0..num_envs).filter(|&k| k != followed);
+        std::iter::once(followed)
+            .chain(others)
+            .take(self.options.max_envs.max(1))
+            .collect()
+    }
+
+    /// The viewer layout for `env` (the envs this recorder draws): what [`Recorder::begin`]
+    /// sends with the recording.
+    pub fn layout(&self, env: &VecEnv) -> Result<Layout, RecordError> {
+        let i = self.check_index(env)?;
+        let base = &env.model().bodies[0];
+        // The camera follows a shape, not the body's frame: rerun's eye tracks an entity by
+        // the bounding box of what it draws, and a body's own entity only holds its pose.
+        let trunk = base
+            .colliders
+            .iter()
+            .position(|c| c.role == ColliderRole::Trunk)
+            .unwrap_or(0);
+        let envs = self.recorded_envs(i, env.num_envs());
+        let mut other_roots = Vec::new();
+        let mut layout_envs = Vec::new();
+        for &k in &envs {
+            let p = env.robot_state(k).base_pos;
+            let (paths, contents) = if k == i {
+                (
+                    ScenePaths::followed(),
+                    vec![
+                        format!("+ /{}/**", entity::WORLD),
+                        format!("- /{}/**", entity::OTHER_ENVS),
+                    ],
+                )
+            } else {
+                let root = entity::other_env(k);
+                other_roots.push(root.clone());
+                (
+                    ScenePaths::other(k),
+                    vec![format!("+ /{}", entity::WORLD), format!("+ /{root}/**")],
+                )
+            };
+            layout_envs.push(LayoutEnv {
+                label: if k == i {
+                    format!("env {k} (followed)")
+                } else {
+                    format!("env {k}")
+                },
+                contents,
+                base: format!("{}/geom{trunk}", paths.body(&base.name)),
+                base_start: [p.x, p.y, p.z],
+            });
+        }
+        Ok(Layout::unigait(&LayoutInput {
+            envs: layout_envs,
+            other_roots,
+            reward_series: vec![format!("{}/**", entity::REWARD_ACTIVE)],
+        }))
+    }
+
+    /// Log the viewer layout, the static scene (axes, robot shapes, terrain, series styles) and
+    /// the state at step 0.
     pub fn begin(&mut self, env: &VecEnv) -> Result<(), RecordError> {
         let i = self.check_index(env)?;
+        self.layout(env)?.send(&self.rec, APPLICATION_ID)?;
+        let out = env.output();
+        self.tracked = self
+            .recorded_envs(i, env.num_envs())
+            .into_iter()
+            .map(|k| Tracked {
+                index: k,
+                paths: if k == i {
+                    ScenePaths::followed()
+                } else {
+                    ScenePaths::other(k)
+                },
+                mode: out.mode[k],
+                head_contact: out.head_contact[k] != 0,
+                falls: 0,
+                head_hits: 0,
+                time_outs: 0,
+                mode_switches: 0,
+            })
+            .collect();
         let rec = &self.rec;
         rec.log_static(entity::WORLD, &ViewCoordinates::RIGHT_HAND_Z_UP())
             .map_err(log_err)?;
-        for body in &env.model().bodies {
-            for (k, c) in body.colliders.iter().enumerate() {
-                let path = format!("{}/geom{k}", entity::body(&body.name));
-                let o = &c.geometry.origin;
-                rec.log_static(
-                    path.as_str(),
-                    &Transform3D::from_translation_rotation(
-                        [o.translation.x, o.translation.y, o.translation.z],
-                        quat(o.rotation),
-                    ),
-                )
-                .map_err(log_err)?;
-                let color = role_color(c.role);
-                match c.geometry.shape {
-                    Shape::Box { size } => rec.log_static(
-                        path.as_str(),
-                        &Boxes3D::from_half_sizes([[size.x / 2.0, size.y / 2.0, size.z / 2.0]])
-                            .with_colors([color])
-                            .with_fill_mode(FillMode::Solid),
-                    ),
-                    // The physics makes cylinders capsules (legged_gym's choice): draw those.
-                    // rerun's capsule runs from z = 0 to z = length; ours is centred.
-                    Shape::Cylinder { radius, length } => rec.log_static(
-                        path.as_str(),
-                        &Capsules3D::from_lengths_and_radii([length], [radius])
-                            .with_translations([[0.0, 0.0, -length / 2.0]])
-                            .with_colors([color])
-                            .with_fill_mode(FillMode::Solid),
-                    ),
-                    Shape::Sphere { radius } => rec.log_static(
-                        path.as_str(),
-                        &Ellipsoids3D::from_radii([radius])
-                            .with_colors([color])
-                            .with_fill_mode(FillMode::Solid),
-                    ),
-                }
-                .map_err(log_err)?;
-            }
+        for t in &self.tracked {
+            log_robot_shapes(rec, env.model(), &t.paths)?;
+            let origin = env.env_state(t.index).origin;
+            let mesh = terrain_mesh(env.terrain(), origin, self.options.terrain_half_window_m);
+            rec.log_static(
+                t.paths.terrain.as_str(),
+                &Mesh3D::new(mesh.positions)
+                    .with_triangle_indices(mesh.triangles)
+                    .with_vertex_colors(mesh.colors),
+            )
+            .map_err(log_err)?;
         }
-        let origin = env.env_state(i).origin;
-        let mesh = terrain_mesh(env.terrain(), origin, self.options.terrain_half_window_m);
+        for (path, name, [r, g, b], width) in SERIES_STYLE {
+            rec.log_static(
+                path,
+                &SeriesLines::new()
+                    .with_names([name])
+                    .with_colors([Color::from_rgb(r, g, b)])
+                    .with_widths([width]),
+            )
+            .map_err(log_err)?;
+        }
+        // Gait lanes: stance as a dark bar, swing left blank, as in a classic gait diagram.
+        for foot in FOOT_NAMES {
+            rec.log_static(
+                entity::gait(foot).as_str(),
+                &StateConfiguration::new()
+                    .with_values(["stance", "swing"])
+                    .with_colors([Color::from_rgb(45, 45, 60), Color::from_rgb(235, 235, 235)])
+                    .with_visible([true, false]),
+            )
+            .map_err(log_err)?;
+        }
         rec.log_static(
-            entity::TERRAIN,
-            &Mesh3D::new(mesh.positions)
-                .with_triangle_indices(mesh.triangles)
-                .with_vertex_colors(mesh.colors),
+            entity::GAIT_MODE,
+            &StateConfiguration::new()
+                .with_values(["quad", "biped", "unknown"])
+                .with_colors([
+                    Color::from_rgb(40, 155, 165),
+                    Color::from_rgb(225, 135, 50),
+                    Color::from_rgb(150, 150, 150),
+                ]),
         )
         .map_err(log_err)?;
         self.log_state(env, 0)
@@ -271,43 +498,58 @@ impl Recorder {
     fn log_state(&mut self, env: &VecEnv, step: u64) -> Result<(), RecordError> {
         let i = self.check_index(env)?;
         let rec = &self.rec;
-        let dt = env.context().config.policy_dt();
+        let cfg = &env.context().config;
+        let dt = cfg.policy_dt();
+        let t_s = step as f64 * f64::from(dt);
         rec.set_time_sequence("step", step as i64);
-        rec.set_duration_secs("sim_time", step as f64 * f64::from(dt));
-        for (body, pose) in env.model().bodies.iter().zip(env.body_poses(i)) {
-            let t = pose.translation;
+        rec.set_duration_secs("sim_time", t_s);
+        let threshold = cfg.rewards.contact_threshold;
+        let out = env.output();
+        // Every recorded env: poses, feet, outcome events.
+        for t in &mut self.tracked {
+            let k = t.index;
+            for (body, pose) in env.model().bodies.iter().zip(env.body_poses(k)) {
+                let p = pose.translation;
+                rec.log(
+                    t.paths.body(&body.name),
+                    &Transform3D::from_translation_rotation([p.x, p.y, p.z], quat(pose.rotation)),
+                )
+                .map_err(log_err)?;
+            }
+            let s = env.robot_state(k);
             rec.log(
-                entity::body(&body.name),
-                &Transform3D::from_translation_rotation([t.x, t.y, t.z], quat(pose.rotation)),
+                t.paths.feet.as_str(),
+                &Points3D::new(s.foot_pos.iter().map(|p| [p.x, p.y, p.z]))
+                    .with_radii(env.model().feet.iter().map(|f| f.radius * 1.2))
+                    .with_colors(s.foot_force.iter().map(|&f| {
+                        if f > threshold {
+                            Color::from_rgb(40, 200, 80)
+                        } else {
+                            Color::from_rgb(200, 200, 200)
+                        }
+                    })),
             )
             .map_err(log_err)?;
+            log_outcome_events(rec, t, env, step, t_s)?;
         }
         let s = env.robot_state(i);
         let e = env.env_state(i);
-        let out = env.output();
-        let threshold = env.context().config.rewards.contact_threshold;
-        let contact: Vec<bool> = s.foot_force.iter().map(|f| *f > threshold).collect();
-        rec.log(
-            entity::FEET,
-            &Points3D::new(s.foot_pos.iter().map(|p| [p.x, p.y, p.z]))
-                .with_radii(env.model().feet.iter().map(|f| f.radius * 1.2))
-                .with_colors(contact.iter().map(|&c| {
-                    if c {
-                        Color::from_rgb(40, 200, 80)
-                    } else {
-                        Color::from_rgb(200, 200, 200)
-                    }
-                }))
-                .with_labels(FOOT_NAMES),
-        )
-        .map_err(log_err)?;
+        let stance: [bool; NUM_FEET] = std::array::from_fn(|f| s.foot_force[f] > threshold);
         for (f, name) in FOOT_NAMES.iter().enumerate() {
             rec.log(
                 format!("contact/{name}"),
-                &Scalars::single(f64::from(u8::from(contact[f]))),
+                &Scalars::single(f64::from(u8::from(stance[f]))),
             )
             .map_err(log_err)?;
+            if self.last_stance.is_none_or(|last| last[f] != stance[f]) {
+                rec.log(
+                    entity::gait(name),
+                    &StateChange::single(if stance[f] { "stance" } else { "swing" }),
+                )
+                .map_err(log_err)?;
+            }
         }
+        self.last_stance = Some(stance);
         let base = [s.base_pos.x, s.base_pos.y, s.base_pos.z];
         let h = heading_direction(s.base_rot);
         let c = e.command;
@@ -327,15 +569,19 @@ impl Recorder {
                 .with_colors([Color::from_rgb(255, 80, 80)]),
         )
         .map_err(log_err)?;
+        let v_heading = to_heading_frame(h, v);
         let scalars = [
             ("command/vx", c[0]),
             ("command/vy", c[1]),
             ("command/wz", c[2]),
+            ("state/vx", v_heading.x),
+            ("state/vy", v_heading.y),
             (
                 "state/base_height",
                 s.base_pos.z - env.terrain().height(s.base_pos.x, s.base_pos.y),
             ),
             ("state/pitch", euler_pitch(s.base_rot)),
+            ("state/upright_pitch", cfg.rewards.upright_pitch),
             ("state/yaw_rate", s.base_angvel.z),
             (entity::MODE, f32::from(out.mode[i])),
         ];
@@ -356,6 +602,15 @@ impl Recorder {
                     &Scalars::single(f64::from(*value)),
                 )
                 .map_err(log_err)?;
+                // A scenario's switch (between steps) already counts in this step's reward; a
+                // mode drawn at a reset is one step early here, harmless for a plot.
+                if term_of_mode(*term, out.mode[i]) {
+                    rec.log(
+                        entity::reward_active(term.name()),
+                        &Scalars::single(f64::from(*value)),
+                    )
+                    .map_err(log_err)?;
+                }
             }
             if out.terminated[i] != 0 || out.truncated[i] != 0 {
                 let what = if out.terminated[i] != 0 {
@@ -371,16 +626,52 @@ impl Recorder {
             }
         }
         if self.last_mode != Some(out.mode[i]) {
-            let name = match out.mode[i] {
-                1 => "biped",
-                2 => "quad",
-                _ => "unknown",
-            };
+            let name = mode_name(out.mode[i]);
             rec.log(entity::EVENTS, &TextLog::new(format!("mode: {name}")))
+                .map_err(log_err)?;
+            rec.log(entity::GAIT_MODE, &StateChange::single(name))
                 .map_err(log_err)?;
             self.last_mode = Some(out.mode[i]);
         }
         self.steps = self.steps.max(step);
+        Ok(())
+    }
+
+    /// Log each recorded env's outcome (falls, head hits, time-outs, mode switches, final
+    /// mode) as an event at the last step.
+    fn log_outcomes(&self) -> Result<(), RecordError> {
+        if self.tracked.is_empty() {
+            return Ok(());
+        }
+        self.rec.set_time_sequence("step", self.steps as i64);
+        for t in &self.tracked {
+            let fell = if t.falls == 0 {
+                "no fall".to_string()
+            } else {
+                format!("{} fall(s)", t.falls)
+            };
+            let text = format!(
+                "env {} outcome: {}; {fell}, {} head hit(s), {} time-out(s), {} mode switch(es), \
+                 ends in {} mode",
+                t.index,
+                if t.falls == 0 { "kept going" } else { "fell" },
+                t.head_hits,
+                t.time_outs,
+                t.mode_switches,
+                mode_name(t.mode),
+            );
+            let level = if t.falls == 0 && t.head_hits == 0 {
+                TextLogLevel::INFO
+            } else {
+                TextLogLevel::WARN
+            };
+            self.rec
+                .log(
+                    entity::outcome(t.index),
+                    &TextLog::new(text).with_level(level),
+                )
+                .map_err(log_err)?;
+        }
         Ok(())
     }
 
@@ -391,13 +682,15 @@ impl Recorder {
         let Some(addr) = self.served else {
             return Err(RecordError::NotServed);
         };
+        self.log_outcomes()?;
         self.rec.flush_blocking().map_err(log_err)?;
         Ok(Served::from_stream(self.rec, addr))
     }
 
-    /// Flush and close (a served recording stops its server: see [`Recorder::finish_serving`]);
-    /// for an in-memory recording, the `.rrd` bytes.
+    /// Log the outcome per env, flush and close (a served recording stops its server: see
+    /// [`Recorder::finish_serving`]); for an in-memory recording, the `.rrd` bytes.
     pub fn finish(self) -> Result<Option<Vec<u8>>, RecordError> {
+        self.log_outcomes()?;
         let bytes = match &self.memory {
             Some(storage) => Some(storage.drain_as_bytes().map_err(log_err)?),
             None => None,
@@ -406,4 +699,107 @@ impl Recorder {
         self.rec.disconnect();
         Ok(bytes)
     }
+}
+
+/// Falls, head hits (each new contact), time-outs and mode switches of a recorded env after a
+/// step, as events on its outcome entity.
+fn log_outcome_events(
+    rec: &RecordingStream,
+    t: &mut Tracked,
+    env: &VecEnv,
+    step: u64,
+    t_s: f64,
+) -> Result<(), RecordError> {
+    let out = env.output();
+    let k = t.index;
+    let mut events: Vec<(String, &str)> = Vec::new();
+    let head = out.head_contact[k] != 0;
+    if step > 0 {
+        if head && !t.head_contact {
+            t.head_hits += 1;
+            events.push((
+                format!("env {k}: head hit the ground at {t_s:.2} s"),
+                TextLogLevel::WARN,
+            ));
+        }
+        if out.terminated[k] != 0 {
+            t.falls += 1;
+            events.push((
+                format!("env {k}: fell (base contact) at {t_s:.2} s; reset"),
+                TextLogLevel::WARN,
+            ));
+        } else if out.truncated[k] != 0 {
+            t.time_outs += 1;
+            events.push((
+                format!("env {k}: episode time-out at {t_s:.2} s; reset"),
+                TextLogLevel::INFO,
+            ));
+        }
+        if out.mode[k] != t.mode {
+            t.mode_switches += 1;
+            events.push((
+                format!(
+                    "env {k}: mode {} -> {} at {t_s:.2} s",
+                    mode_name(t.mode),
+                    mode_name(out.mode[k])
+                ),
+                TextLogLevel::INFO,
+            ));
+        }
+    }
+    t.head_contact = head;
+    t.mode = out.mode[k];
+    for (text, level) in events {
+        rec.log(entity::outcome(k), &TextLog::new(text).with_level(level))
+            .map_err(log_err)?;
+    }
+    Ok(())
+}
+
+/// The robot's collision shapes under `paths.robot`, static in their bodies' frames.
+fn log_robot_shapes(
+    rec: &RecordingStream,
+    model: &RobotModel,
+    paths: &ScenePaths,
+) -> Result<(), RecordError> {
+    for body in &model.bodies {
+        for (k, c) in body.colliders.iter().enumerate() {
+            let path = format!("{}/geom{k}", paths.body(&body.name));
+            let o = &c.geometry.origin;
+            rec.log_static(
+                path.as_str(),
+                &Transform3D::from_translation_rotation(
+                    [o.translation.x, o.translation.y, o.translation.z],
+                    quat(o.rotation),
+                ),
+            )
+            .map_err(log_err)?;
+            let color = link_color(&body.name, c.role);
+            match c.geometry.shape {
+                Shape::Box { size } => rec.log_static(
+                    path.as_str(),
+                    &Boxes3D::from_half_sizes([[size.x / 2.0, size.y / 2.0, size.z / 2.0]])
+                        .with_colors([color])
+                        .with_fill_mode(FillMode::Solid),
+                ),
+                // The physics makes cylinders capsules (legged_gym's choice): draw those.
+                // rerun's capsule runs from z = 0 to z = length; ours is centred.
+                Shape::Cylinder { radius, length } => rec.log_static(
+                    path.as_str(),
+                    &Capsules3D::from_lengths_and_radii([length], [radius])
+                        .with_translations([[0.0, 0.0, -length / 2.0]])
+                        .with_colors([color])
+                        .with_fill_mode(FillMode::Solid),
+                ),
+                Shape::Sphere { radius } => rec.log_static(
+                    path.as_str(),
+                    &Ellipsoids3D::from_radii([radius])
+                        .with_colors([color])
+                        .with_fill_mode(FillMode::Solid),
+                ),
+            }
+            .map_err(log_err)?;
+        }
+    }
+    Ok(())
 }

@@ -10,9 +10,11 @@ use std::io::BufReader;
 use std::net::{IpAddr, Ipv4Addr, Ipv6Addr, SocketAddr, TcpListener, TcpStream};
 use std::time::{Duration, Instant};
 
+use rerun::TimelineName;
+use rerun::external::arrow::array::BooleanArray;
 use rerun::external::re_uri::ProxyUri;
 use rerun::grpc_server::GrpcServerSink;
-use rerun::log::LogMsg;
+use rerun::log::{Chunk, LogMsg};
 use rerun::sink::{GrpcSink, LogSink as _};
 use rerun::{MemoryLimit, PlaybackBehavior, RecordingStream, ServerOptions};
 
@@ -244,14 +246,64 @@ impl Served {
 /// Send a finished recording (the `.rrd` bytes) to a viewer's gRPC proxy, e.g.
 /// `rerun+http://127.0.0.1:9876/proxy`; fails if it is not delivered within `timeout`.
 pub fn send_rrd(rrd: &[u8], url: &str, timeout: Duration) -> Result<(), RecordError> {
+    send_rrd_until(rrd, url, timeout, None)
+}
+
+/// [`send_rrd`], cut after policy step `last_step` when given: data logged on the `step`
+/// timeline after it is left out, everything else (static data, the viewer layout) is sent.
+/// A viewer following the live stream then shows that step (e.g. to photograph it).
+pub fn send_rrd_until(
+    rrd: &[u8],
+    url: &str,
+    timeout: Duration,
+    last_step: Option<i64>,
+) -> Result<(), RecordError> {
     let uri: ProxyUri = url
         .parse()
         .map_err(|e| RecordError::Open(format!("bad viewer URL `{url}`: {e}")))?;
-    let msgs = decode_rrd(rrd).collect::<Result<Vec<_>, _>>()?;
+    let mut msgs = decode_rrd(rrd).collect::<Result<Vec<_>, _>>()?;
+    if let Some(last) = last_step {
+        msgs = cut_after(msgs, "step", last)?;
+    }
     let sink = GrpcSink::new(uri);
     for msg in msgs {
         sink.send(msg);
     }
     sink.flush_blocking(timeout)
         .map_err(|e| RecordError::Open(format!("cannot deliver to the viewer at {url}: {e}")))
+}
+
+/// The messages with the rows logged after `last` on `timeline` left out (rows without that
+/// timeline, and messages other than data, are kept).
+pub(crate) fn cut_after(
+    msgs: Vec<LogMsg>,
+    timeline: &'static str,
+    last: i64,
+) -> Result<Vec<LogMsg>, RecordError> {
+    let name = TimelineName::from_static_str(timeline);
+    let mut out = Vec::with_capacity(msgs.len());
+    for msg in msgs {
+        let LogMsg::ArrowMsg(store, arrow) = &msg else {
+            out.push(msg);
+            continue;
+        };
+        let chunk =
+            Chunk::from_arrow_msg(arrow).map_err(|e| RecordError::InvalidRrd(e.to_string()))?;
+        let Some(column) = chunk.timelines().get(&name) else {
+            out.push(msg);
+            continue;
+        };
+        let keep: Vec<bool> = column.times_raw().iter().map(|&t| t <= last).collect();
+        if keep.iter().all(|&k| k) {
+            out.push(msg);
+        } else if let Some(cut) = chunk.filtered(&BooleanArray::from(keep))
+            && cut.num_rows() > 0
+        {
+            let arrow = cut
+                .to_arrow_msg()
+                .map_err(|e| RecordError::InvalidRrd(e.to_string()))?;
+            out.push(LogMsg::ArrowMsg(store.clone(), arrow));
+        }
+    }
+    Ok(out)
 }

@@ -23,6 +23,9 @@ impl TerrainMesh {
     }
 }
 
+/// Side of a flat-ground tile (m).
+pub const FLAT_TILE_M: f32 = 0.5;
+
 /// Grey shaded by height: lighter higher, so stair treads stand apart.
 fn shade(z: f32) -> [u8; 4] {
     let v = (150.0 + 120.0 * z).clamp(60.0, 235.0) as u8;
@@ -31,7 +34,9 @@ fn shade(z: f32) -> [u8; 4] {
 
 /// The terrain within `half_window` (m) of `centre` (world x, y).
 ///
-/// Flat ground is one quad. A grid is drawn cell by cell at its own resolution
+/// Flat ground is a checkerboard of [`FLAT_TILE_M`] tiles aligned to the world axes (so a
+/// camera that follows the robot still shows it move, and overlapping windows of several envs
+/// agree). A grid is drawn cell by cell at its own resolution
 /// (`horizontal_scale`): each cell a quad whose corners are sampled just inside the cell (so a
 /// tread is flat and a slope is planar), plus a vertical wall wherever two neighbouring cells
 /// meet at different heights (the grid's step faces are vertical).
@@ -40,15 +45,35 @@ pub fn terrain_mesh(terrain: &Terrain, centre: [f32; 2], half_window: f32) -> Te
     let half = half_window.max(0.1);
     let Some(grid) = terrain.grid() else {
         let [cx, cy] = centre;
-        mesh.push_quad(
-            [
-                [cx - half, cy - half, 0.0],
-                [cx + half, cy - half, 0.0],
-                [cx + half, cy + half, 0.0],
-                [cx - half, cy + half, 0.0],
-            ],
-            shade(0.0),
+        let t = FLAT_TILE_M;
+        let (x0, x1) = (
+            ((cx - half) / t).floor() as i64,
+            ((cx + half) / t).ceil() as i64,
         );
+        let (y0, y1) = (
+            ((cy - half) / t).floor() as i64,
+            ((cy + half) / t).ceil() as i64,
+        );
+        let light = shade(0.0);
+        let dark = light.map(|c| c.saturating_sub(22));
+        for a in x0..x1 {
+            for b in y0..y1 {
+                let (x, y) = (a as f32 * t, b as f32 * t);
+                mesh.push_quad(
+                    [
+                        [x, y, 0.0],
+                        [x + t, y, 0.0],
+                        [x + t, y + t, 0.0],
+                        [x, y + t, 0.0],
+                    ],
+                    if (a + b).rem_euclid(2) == 0 {
+                        light
+                    } else {
+                        dark
+                    },
+                );
+            }
+        }
         return mesh;
     };
     let cell = grid.spec().horizontal_scale;
@@ -100,11 +125,19 @@ mod test {
     use super::*;
 
     #[test]
-    fn flat_is_one_quad() {
+    fn flat_is_a_checkerboard_aligned_to_the_world() {
         let m = terrain_mesh(&Terrain::Flat, [1.0, 2.0], 5.0);
-        assert_eq!(m.positions.len(), 4);
-        assert_eq!(m.triangles.len(), 2);
-        assert_eq!(m.positions[2], [6.0, 7.0, 0.0]);
+        // x from -4 to 6, y from -3 to 7: 20 x 20 tiles of 0.5 m.
+        assert_eq!(m.triangles.len(), 2 * 20 * 20);
+        assert_eq!(m.positions[0], [-4.0, -3.0, 0.0]);
+        assert!(m.positions.iter().all(|p| p[2] == 0.0));
+        assert!(
+            m.positions
+                .iter()
+                .all(|p| (p[0] / FLAT_TILE_M).fract() == 0.0 && (p[1] / FLAT_TILE_M).fract() == 0.0)
+        );
+        // Neighbouring tiles differ, so motion over flat ground reads.
+        assert_ne!(m.colors[0], m.colors[4]);
     }
 
     #[test]

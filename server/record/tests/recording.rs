@@ -10,10 +10,12 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use re_log_channel::{DataSourceMessage, RecvTimeoutError, SmartMessagePayload};
-use rerun::TimelineName;
 use rerun::external::re_grpc_client;
 use rerun::log::{Chunk, LogMsg};
-use unigait_record::{RecordError, RecordOptions, Recorder, ServeOptions, Served, entity};
+use rerun::{StoreKind, TimelineName};
+use unigait_record::{
+    FOOT_NAMES, RecordError, RecordOptions, Recorder, ServeOptions, Served, entity,
+};
 use unigait_sim::env::{VecEnv, VecEnvOptions};
 use unigait_sim::robot::RobotModel;
 use unigait_sim::task::{RewardTerm, TaskConfig};
@@ -30,6 +32,8 @@ struct EntityRows {
     steps: BTreeSet<i64>,
     rows: usize,
     is_static: bool,
+    /// Components logged (`Archetype:field`).
+    components: BTreeSet<String>,
 }
 
 /// Rows per entity of a stream of messages.
@@ -40,20 +44,34 @@ struct Tally {
     store_ids: BTreeSet<String>,
     /// Messages seen.
     msgs: usize,
+    /// Entities of the blueprint store (the viewer layout), kept apart from the recording's.
+    blueprint: BTreeMap<String, EntityRows>,
+    /// Blueprint activation commands seen.
+    activations: usize,
 }
 
 impl Tally {
     fn add(&mut self, msg: &LogMsg) {
         self.msgs += 1;
         self.store_ids.insert(format!("{:?}", msg.store_id()));
-        let LogMsg::ArrowMsg(_, arrow) = msg else {
+        if let LogMsg::BlueprintActivationCommand(_) = msg {
+            self.activations += 1;
+        }
+        let LogMsg::ArrowMsg(store, arrow) = msg else {
             return;
         };
         let chunk = Chunk::from_arrow_msg(arrow).expect("a valid chunk");
-        let e = self
-            .entities
-            .entry(chunk.entity_path().to_string())
-            .or_default();
+        let map = if store.kind() == StoreKind::Blueprint {
+            &mut self.blueprint
+        } else {
+            &mut self.entities
+        };
+        let e = map.entry(chunk.entity_path().to_string()).or_default();
+        e.components.extend(
+            chunk
+                .component_descriptors()
+                .map(|d| d.display_name().to_string()),
+        );
         match chunk
             .timelines()
             .get(&TimelineName::from_static_str("step"))
@@ -175,7 +193,16 @@ fn rrd_file_holds_robot_steps_and_reward_series() {
     assert_eq!(recorder.finish().expect("finish"), None);
     let bytes = std::fs::read(&file).expect("rrd written");
     std::fs::remove_dir_all(&dir).ok();
-    check_whole_rollout(&decode(&bytes));
+    let tally = decode_all(&bytes);
+    check_whole_rollout(&tally.entities);
+    check_layout(&tally);
+    // The outcome per recorded env, logged when the recording finishes.
+    for k in [0, 1] {
+        assert!(
+            tally.entities.contains_key(&path(&entity::outcome(k))),
+            "env {k}"
+        );
+    }
 }
 
 /// What is missing from a whole rollout: the robot's bodies with one pose per step (step 0,
@@ -228,10 +255,35 @@ fn rollout_gaps(entities: &BTreeMap<String, EntityRows>) -> Vec<String> {
         entity::MODE,
         "contact/FL",
         "command/vx",
+        "state/vx",
+        "state/upright_pitch",
+        // Another recorded env: its robot moves too.
+        "world/envs/1/robot/base",
+        "world/envs/1/feet",
     ] {
         expect(format!("{p}: a row per step"), steps_0_to_n(&path(p)));
     }
-    for p in [entity::TERRAIN, entity::WORLD] {
+    // The gait diagram and the mode lane start at step 0 and change only when a foot does.
+    for p in FOOT_NAMES
+        .iter()
+        .map(|f| entity::gait(f))
+        .chain([entity::GAIT_MODE.to_string()])
+    {
+        expect(
+            format!("{p}: state changes from step 0"),
+            entities.get(&path(&p)).is_some_and(|e| {
+                e.steps.first() == Some(&0) && e.components.iter().any(|c| c.contains("state"))
+            }),
+        );
+    }
+    expect(
+        "the active mode's terms".into(),
+        entities
+            .keys()
+            .any(|k| k.starts_with(&path(entity::REWARD_ACTIVE))),
+    );
+
+    for p in [entity::TERRAIN, entity::WORLD, "world/envs/1/terrain"] {
         expect(
             format!("{p}: static"),
             entities.get(&path(p)).is_some_and(|e| e.is_static),
@@ -310,7 +362,9 @@ fn a_served_recording_reaches_a_viewer_joining_after_the_rollout() {
     // The viewer joins only now: everything was buffered for it.
     let tally = join_as_viewer(&url, |t| t.entities.contains_key(&path(END)));
     check_whole_rollout(&tally.entities);
-    assert_eq!(tally.store_ids.len(), 1, "{:?}", tally.store_ids);
+    // The recording and its viewer layout, which the viewer activates.
+    assert_eq!(tally.store_ids.len(), 2, "{:?}", tally.store_ids);
+    check_layout(&tally);
 
     served.shutdown().expect("clean shutdown");
     assert_stops_listening(addr);
@@ -365,4 +419,110 @@ fn serving_on_a_port_in_use_is_an_error() {
         not_served.finish_serving(),
         Err(RecordError::NotServed)
     ));
+}
+
+/// The viewer layout came with the recording: a blueprint store with views and an activation.
+fn check_layout(tally: &Tally) {
+    assert_eq!(tally.activations, 1, "one blueprint activation");
+    assert!(
+        tally.blueprint.contains_key("/viewport"),
+        "{:?}",
+        tally.blueprint.keys()
+    );
+    let views = tally
+        .blueprint
+        .iter()
+        .filter(|(_, e)| e.components.iter().any(|c| c.contains("class_identifier")))
+        .count();
+    // 2 recorded envs (2 tabs of 3D) + events + velocity + posture + gait + reward.
+    assert_eq!(views, 7, "{:#?}", tally.blueprint.keys());
+    assert!(
+        tally
+            .blueprint
+            .keys()
+            .any(|k| k.ends_with("/EyeControls3D")),
+        "a camera that follows the robot"
+    );
+}
+
+/// What the recording holds at `p` or under it.
+fn exists_in(entities: &BTreeMap<String, EntityRows>, p: &str) -> bool {
+    let p = path(p);
+    entities.contains_key(&p) || entities.keys().any(|k| k.starts_with(&format!("{p}/")))
+}
+
+#[test]
+fn the_layout_names_entities_the_recording_has() {
+    let mut env = env(Terrain::Flat);
+    let mut recorder = Recorder::in_memory(RecordOptions::default()).expect("memory");
+    let layout = recorder.layout(&env).expect("layout");
+    record(&mut recorder, &mut env);
+    let tally = decode_all(&recorder.finish().expect("finish").expect("bytes"));
+    check_layout(&tally);
+    let named = layout.named_entities();
+    for p in [
+        "world/robot/base/geom0",
+        "world/envs/1/robot/base/geom0",
+        "gait",
+        "reward/total",
+        "reward/active",
+        "state/pitch",
+        "state/upright_pitch",
+        "command/vx",
+        "events",
+    ] {
+        assert!(named.contains(p), "the layout shows {p}: {named:#?}");
+    }
+    let missing: Vec<&String> = named
+        .iter()
+        .filter(|p| !exists_in(&tally.entities, p))
+        .collect();
+    assert!(missing.is_empty(), "named but not recorded: {missing:?}");
+    // The per-term series stay in the store without a view of their own.
+    assert!(exists_in(&tally.entities, &entity::reward("torques")));
+    assert!(!named.contains(&entity::reward("torques")));
+}
+
+#[test]
+fn robot_links_carry_no_labels_and_feet_have_none() {
+    let mut env = env(Terrain::Flat);
+    let mut recorder = Recorder::in_memory(RecordOptions::default()).expect("memory");
+    record(&mut recorder, &mut env);
+    let tally = decode_all(&recorder.finish().expect("finish").expect("bytes"));
+    let world = path(entity::WORLD);
+    let labelled: Vec<&String> = tally
+        .entities
+        .iter()
+        .filter(|(k, e)| k.starts_with(&world) && e.components.iter().any(|c| c.contains("labels")))
+        .map(|(k, _)| k)
+        .collect();
+    assert!(labelled.is_empty(), "labels on {labelled:?}");
+    // Colours by link group: the shapes carry colours.
+    let thigh = &tally.entities[&path(&format!("{}/geom0", entity::body("FL_thigh")))];
+    assert!(
+        thigh.components.iter().any(|c| c.contains("colors")),
+        "{thigh:?}"
+    );
+}
+
+#[test]
+fn one_env_only_when_asked() {
+    let mut env = env(Terrain::Flat);
+    let options = RecordOptions {
+        max_envs: 1,
+        ..RecordOptions::default()
+    };
+    let mut recorder = Recorder::in_memory(options).expect("memory");
+    let layout = recorder.layout(&env).expect("layout");
+    assert_eq!(
+        layout
+            .views()
+            .iter()
+            .filter(|v| v.kind == unigait_record::blueprint::ViewKind::Spatial3D)
+            .count(),
+        1
+    );
+    record(&mut recorder, &mut env);
+    let tally = decode_all(&recorder.finish().expect("finish").expect("bytes"));
+    assert!(!exists_in(&tally.entities, entity::OTHER_ENVS));
 }
