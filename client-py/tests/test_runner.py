@@ -8,11 +8,12 @@ import torch
 from fakes import FakeSession
 from rsl_rl.runners import OnPolicyRunner as RslOnPolicyRunner
 
-from unigait.cli import main
+from unigait.cli import main, training_command
 from unigait.config import load_config
 from unigait.env import TorchVecEnv
 from unigait.env.rsl_rl_env import RslRlVecEnv, rsl_rl_train_cfg
 from unigait.runners import OnPolicyRunner
+from unigait.ship import model_card
 
 SMALL = [
     "runner.num_steps_per_env=6",
@@ -58,11 +59,21 @@ def test_runner_trains_logs_checkpoints_and_resumes(tmp_path, capsys):
     resumed.learn(1)
     assert resumed.iteration == 3
 
-    # Staged training: networks and the adaptive learning rate, not the counters or optimiser.
+    # Staged training: networks and the adaptive learning rate, not the counters or optimiser;
+    # the stage commands travel with the networks, and a resume adds none.
+    first = training_command(["train", "--preset", "quad_flat", "--resume", "runs/q/m.pt"])
+    assert first == "python -m unigait train --preset quad_flat"
+    runner.record_stage(first)
     runner.ppo._set_lr(2.5e-5)
     runner.save(tmp_path / "model_staged.pt")
     staged = OnPolicyRunner(TorchVecEnv(FakeSession(8)), cfg, None)
     staged.load_weights(tmp_path / "model_staged.pt")
+    second = "python -m unigait train --preset unified_flat --init-from 'a b/model.pt'"
+    staged.record_stage(second)
+    staged.record_stage(second)
+    assert staged.stages == [first, second]
+    card = model_card("u", "unified_flat", staged.state_dict(), {}, [], "abc", 1000, 8)
+    assert f"```sh\n{first}\n{second}\npython -m unigait ship" in card
     assert staged.iteration == 0 and staged.ppo.learning_rate == 2.5e-5
     assert not staged.ppo.optimizer.state
     for a, b in zip(

@@ -6,6 +6,7 @@ import argparse
 import contextlib
 import json
 import os
+import shlex
 import sys
 from collections.abc import Iterator, Sequence
 from pathlib import Path
@@ -59,6 +60,20 @@ def _add_connection_flags(parser: argparse.ArgumentParser) -> None:
 def _connection(args: argparse.Namespace) -> ConnectionOptions:
     """Client keyword arguments from ``--tls-ca``, ``--token-file`` and ``$UNIGAIT_TOKEN``."""
     return load_connection_options(args.tls_ca, args.token_file)
+
+
+def training_command(argv: Sequence[str]) -> str:
+    """The shell line of a training stage, without the flags that only say where it resumed."""
+    kept: list[str] = []
+    skip = False
+    for arg in argv:
+        if skip:
+            skip = False
+        elif arg == "--resume":
+            skip = True
+        elif not arg.startswith("--resume="):
+            kept.append(arg)
+    return shlex.join(["python", "-m", "unigait", *kept])
 
 
 def _train(args: argparse.Namespace) -> int:
@@ -124,6 +139,7 @@ def _train(args: argparse.Namespace) -> int:
                 cpus_per_server=args.cpus_per_server,
                 resume=args.resume,
                 init_from=args.init_from,
+                stage=training_command(args.argv),
                 credentials=credentials,
                 host=None if args.server_host == "node" else args.server_host,
             )
@@ -142,6 +158,7 @@ def _train(args: argparse.Namespace) -> int:
             elif args.init_from:
                 runner.load_weights(args.init_from)
                 print(f"networks initialised from {args.init_from}")
+            runner.record_stage(training_command(args.argv))
             remaining = max(cfg.runner.max_iterations - runner.iteration, 0)
             print(
                 f"training {env.num_envs} envs x {cfg.runner.num_steps_per_env} steps on "
@@ -383,7 +400,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``python -m unigait`` and the ``unigait`` script."""
+    argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(argv)
+    args.argv = argv
     try:
         return int(args.func(args))
     except UnigaitError as err:

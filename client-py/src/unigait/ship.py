@@ -155,12 +155,23 @@ def model_card(
             f"| {c.label} | `{c.scenario}` | `{c.metric}` | {c.op} {c.bound} | {shown} | "
             f"{'yes' if c.passes(v) else 'no'} |"
         )
+    stages = [str(s) for s in checkpoint.get("stages", [])]
+    if stages:
+        recipe = (
+            "The commands that trained it, in order (each later stage starts from the one "
+            "before's checkpoint with `--init-from`):"
+        )
+    else:  # checkpoints written before the runner kept its stages
+        recipe = "The preset's command (this checkpoint does not record its stages):"
+        stages = [f"python -m unigait train --preset {preset} --log-dir runs/{name}"]
     lines += [
         "",
         "## Reproduce",
         "",
+        recipe,
+        "",
         "```sh",
-        f"python -m unigait train --preset {preset} --log-dir runs/{name}",
+        *stages,
         f"python -m unigait ship --run-dir runs/{name} --name {name} --preset {preset}",
         "```",
         "",

@@ -70,6 +70,7 @@ def train_with_pool(
     *,
     resume: str | Path | None = None,
     init_from: str | Path | None = None,
+    stage: str | None = None,
 ) -> list[dict[str, float]]:
     """Train ``cfg.runner.max_iterations`` (minus a resumed checkpoint's) over a started pool.
 
@@ -78,6 +79,7 @@ def train_with_pool(
         cfg: The training config (``env.servers`` is ignored).
         resume: A checkpoint to continue from.
         init_from: A checkpoint whose networks (only) start the run (staged training).
+        stage: The command line of this run, kept in its checkpoints (model cards show it).
 
     Returns:
         The logged scalars of each iteration.
@@ -97,6 +99,8 @@ def train_with_pool(
         elif init_from:
             runner.load_weights(init_from)
             print(f"networks initialised from {init_from}")
+        if stage:
+            runner.record_stage(stage)
         remaining = max(cfg.runner.max_iterations - runner.iteration, 0)
         print(
             f"training {env.num_envs} envs x {cfg.runner.num_steps_per_env} steps on "
@@ -116,6 +120,7 @@ def train_on_ray(
     cpus_per_server: int = 1,
     resume: str | Path | None = None,
     init_from: str | Path | None = None,
+    stage: str | None = None,
     ship_binary: str | Path | None = None,
     pool_options: dict[str, Any] | None = None,
     credentials: ServerCredentials | None = None,
@@ -132,6 +137,7 @@ def train_on_ray(
         cpus_per_server: CPUs (and server threads) per actor.
         resume: A checkpoint to continue from.
         init_from: A checkpoint whose networks (only) start the run.
+        stage: The command line of this run, kept in its checkpoints.
         ship_binary: Upload this local server binary to the nodes with the job (see
             :func:`unigait.ray.pool.ship_binary_env`); needs this call to connect to Ray.
         pool_options: More :class:`ServerPool` arguments (``extra_args``, ``strategy``, ...).
@@ -174,7 +180,7 @@ def train_on_ray(
                     f"server {m.index}: {m.address} on node {m.node_ip} ({m.node_id[:12]}), "
                     f"{security}"
                 )
-            history = train_with_pool(pool, cfg, resume=resume, init_from=init_from)
+            history = train_with_pool(pool, cfg, resume=resume, init_from=init_from, stage=stage)
             restarts = sum(pool.restarts)
             if restarts:
                 print(f"servers restarted during the run: {json.dumps(pool.restarts)}")

@@ -86,6 +86,9 @@ class OnPolicyRunner:
         self.stats = EpisodeStats(env.num_envs, spec.reward_terms, self.device)
         self.iteration = 0
         self.total_env_steps = 0
+        #: The commands that trained these networks, first stage first (staged training carries
+        #: the parent checkpoint's list; a resumed run adds its own line): a model card's recipe.
+        self.stages: list[str] = []
         self.timers = Timers()
         self.log_dir = log_dir
         self.logger: TrainLogger | None = None
@@ -241,6 +244,7 @@ class OnPolicyRunner:
             "optimizer": self.ppo.optimizer.state_dict(),
             "estimator_optimizer": self.estimator_learning.optimizer.state_dict(),
             "learning_rate": self.ppo.learning_rate,
+            "stages": list(self.stages),
             "config": self.cfg.to_dict(),
             "dims": self.dims,
         }
@@ -264,6 +268,7 @@ class OnPolicyRunner:
         state = torch.load(path, map_location=self.device, weights_only=False)
         self.actor_critic.load_state_dict(state["actor_critic"])
         self.estimator.load_state_dict(state["estimator"])
+        self.stages = list(state.get("stages", []))
         if "learning_rate" in state and self.cfg.ppo.schedule == "adaptive":
             self.ppo._set_lr(float(state["learning_rate"]))
 
@@ -277,3 +282,9 @@ class OnPolicyRunner:
         self.ppo._set_lr(float(state["learning_rate"]))
         self.iteration = int(state["iteration"])
         self.total_env_steps = int(state.get("total_env_steps", 0))
+        self.stages = list(state.get("stages", []))
+
+    def record_stage(self, command: str) -> None:
+        """Note the command now training these networks (once: a resume of it adds nothing)."""
+        if not self.stages or self.stages[-1] != command:
+            self.stages.append(command)
