@@ -79,3 +79,17 @@ def test_onnx_export_matches_torch(tmp_path):
     flat = x.flatten(1)
     by_hand = ac.actor(torch.cat([flat, est(flat)], -1))
     np.testing.assert_allclose(policy(x).detach(), by_hand.detach(), atol=1e-6)
+
+
+def test_presets_load_and_each_stage_can_start_from_the_one_before():
+    from unigait import presets
+
+    cfgs = {name: load_config(None, presets.overrides_of(name)) for name in presets.names()}
+    assert set(cfgs) >= {"quad_flat", "unified_flat", "unified_terrain"}
+    # quad_flat keeps Table III (its shipped M1 policy was trained so).
+    assert list(cfgs["quad_flat"].policy.actor_hidden_dims) == [512, 256, 128]
+    # unified_terrain starts from a unified_flat checkpoint: the networks must match.
+    flat, terrain = cfgs["unified_flat"].policy, cfgs["unified_terrain"].policy
+    assert list(flat.actor_hidden_dims) == list(terrain.actor_hidden_dims) == [256, 128, 64]
+    assert list(flat.critic_hidden_dims) == list(terrain.critic_hidden_dims) == [256, 128, 64]
+    assert cfgs["unified_flat"].ppo == cfgs["quad_flat"].ppo  # the paper's PPO everywhere

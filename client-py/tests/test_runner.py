@@ -74,6 +74,7 @@ def test_runner_trains_logs_checkpoints_and_resumes(tmp_path, capsys):
     assert staged.stages == [first, second]
     card = model_card("u", "unified_flat", staged.state_dict(), {}, [], "abc", 1000, 8)
     assert f"```sh\n{first}\n{second}\npython -m unigait ship" in card
+    assert "- networks: actor [32, 16], critic [32, 16], estimator [16], elu: NOT Table III" in card
     assert staged.iteration == 0 and staged.ppo.learning_rate == 2.5e-5
     assert not staged.ppo.optimizer.state
     for a, b in zip(

@@ -139,7 +139,7 @@ def model_card(
         f"{wall_s / 3600:.2f} h",
         f"- machine: {_machine()}",
         f"- code: git commit `{commit}`",
-        "- networks: Table III (actor and critic [512, 256, 128], estimator [256, 128], ELU)",
+        f"- networks: {_networks(checkpoint)}",
         f"- evaluated on seed {eval_seed} (training used seeds below 100), {num_envs} envs per "
         "scenario",
         "",
@@ -185,6 +185,26 @@ def model_card(
         "```",
     ]
     return "\n".join(lines) + "\n"
+
+
+#: Table III's hidden layers (actor and critic; estimator).
+TABLE_III = ([512, 256, 128], [256, 128])
+
+
+def _networks(checkpoint: dict[str, Any]) -> str:
+    """The card's networks line: the checkpoint's sizes, and whether they are Table III's."""
+    from unigait.config import TrainConfig, apply
+
+    cfg = apply(TrainConfig(), checkpoint.get("config", {}))
+    actor, critic = list(cfg.policy.actor_hidden_dims), list(cfg.policy.critic_hidden_dims)
+    estimator = list(cfg.estimator.hidden_dims)
+    sizes = f"actor {actor}, critic {critic}, estimator {estimator}, {cfg.policy.activation}"
+    if (actor, critic, estimator) == (TABLE_III[0], TABLE_III[0], TABLE_III[1]):
+        return f"Table III ({sizes})"
+    return (
+        f"{sizes}: NOT Table III's (actor and critic {TABLE_III[0]}, estimator "
+        f"{TABLE_III[1]}); the preset says why (measured faster per hour on this machine)"
+    )
 
 
 def _config_toml(checkpoint: dict[str, Any]) -> str:
