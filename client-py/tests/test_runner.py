@@ -4,6 +4,7 @@ own runner on the adapter."""
 import csv
 import math
 
+import pytest
 import torch
 from fakes import FakeSession
 from rsl_rl.runners import OnPolicyRunner as RslOnPolicyRunner
@@ -76,6 +77,10 @@ def test_runner_trains_logs_checkpoints_and_resumes(tmp_path, capsys):
     assert f"```sh\n{first}\n{second}\npython -m unigait ship" in card
     assert "- networks: actor [32, 16], critic [32, 16], estimator [16], elu: NOT Table III" in card
     assert staged.iteration == 0 and staged.ppo.learning_rate == 2.5e-5
+    other = load_config(None, [*SMALL, "policy.actor_hidden_dims=[24, 16]"])
+    mismatched = OnPolicyRunner(TorchVecEnv(FakeSession(8)), other, None)
+    with pytest.raises(ValueError, match=r"policy.actor_hidden_dims = \[32, 16\], this run \[24"):
+        mismatched.load_weights(tmp_path / "model_staged.pt")
     assert not staged.ppo.optimizer.state
     for a, b in zip(
         runner.actor_critic.parameters(), staged.actor_critic.parameters(), strict=True

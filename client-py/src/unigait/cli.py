@@ -143,7 +143,7 @@ def _train(args: argparse.Namespace) -> int:
                 credentials=credentials,
                 host=None if args.server_host == "node" else args.server_host,
             )
-        except (PermissionError, ConnectionError) as err:  # refused token, untrusted certificate
+        except (PermissionError, ConnectionError, ValueError) as err:  # token, TLS, checkpoint
             print(f"error: {err}", file=sys.stderr)
             return 2
         return 0
@@ -152,12 +152,16 @@ def _train(args: argparse.Namespace) -> int:
         env = TorchVecEnv(session, cfg.runner.device)
         try:
             runner = OnPolicyRunner(env, cfg, log_dir)
-            if args.resume:
-                runner.load(args.resume)
-                print(f"resumed from {args.resume} at iteration {runner.iteration}")
-            elif args.init_from:
-                runner.load_weights(args.init_from)
-                print(f"networks initialised from {args.init_from}")
+            try:
+                if args.resume:
+                    runner.load(args.resume)
+                    print(f"resumed from {args.resume} at iteration {runner.iteration}")
+                elif args.init_from:
+                    runner.load_weights(args.init_from)
+                    print(f"networks initialised from {args.init_from}")
+            except ValueError as err:  # a checkpoint of other networks
+                print(f"error: {err}", file=sys.stderr)
+                return 2
             runner.record_stage(training_command(args.argv))
             remaining = max(cfg.runner.max_iterations - runner.iteration, 0)
             print(

@@ -255,6 +255,17 @@ class OnPolicyRunner:
         torch.save(state, path)
         torch.save(state, path.with_name("model_latest.pt"))
 
+    def _check_networks(self, path: str | Path, state: dict[str, Any]) -> None:
+        """Refuse, naming both, a checkpoint whose network sizes are not this run's."""
+        theirs = state.get("config", {}).get("policy", {})
+        ours = self.cfg.policy
+        for key in ("actor_hidden_dims", "critic_hidden_dims"):
+            if key in theirs and list(theirs[key]) != list(getattr(ours, key)):
+                raise ValueError(
+                    f"{path} has policy.{key} = {list(theirs[key])}, this run "
+                    f"{list(getattr(ours, key))}: pass --set 'policy.{key}={list(theirs[key])}'"
+                )
+
     def load_weights(self, path: str | Path) -> None:
         """Take the networks of a checkpoint (staged training); optimisers and counters stay.
 
@@ -266,6 +277,7 @@ class OnPolicyRunner:
         0.013, the rule's target being 0.01.
         """
         state = torch.load(path, map_location=self.device, weights_only=False)
+        self._check_networks(path, state)
         self.actor_critic.load_state_dict(state["actor_critic"])
         self.estimator.load_state_dict(state["estimator"])
         self.stages = list(state.get("stages", []))
@@ -275,6 +287,7 @@ class OnPolicyRunner:
     def load(self, path: str | Path) -> None:
         """Restore networks, optimisers, learning rate and counters from a checkpoint."""
         state = torch.load(path, map_location=self.device, weights_only=False)
+        self._check_networks(path, state)
         self.actor_critic.load_state_dict(state["actor_critic"])
         self.estimator.load_state_dict(state["estimator"])
         self.ppo.optimizer.load_state_dict(state["optimizer"])
