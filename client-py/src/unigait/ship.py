@@ -125,8 +125,9 @@ def model_card(
     commit: str,
     eval_seed: int,
     num_envs: int,
+    run_dir: str | None = None,
 ) -> str:
-    """The model card's Markdown text."""
+    """The model card's Markdown text (``run_dir``: the training output shipped from)."""
     steps = int(checkpoint.get("total_env_steps", 0))
     iterations = int(checkpoint.get("iteration", 0))
     wall_s = sum(float(r.get("iteration_time_s", 0.0) or 0.0) for r in rows)
@@ -172,7 +173,8 @@ def model_card(
         "",
         "```sh",
         *stages,
-        f"python -m unigait ship --run-dir runs/{name} --name {name} --preset {preset}",
+        f"python -m unigait ship --run-dir {run_dir or f'runs/{name}'} --name {name} "
+        f"--preset {preset}",
         "```",
         "",
         "Training resumes from `model.pt` with `--resume`; a later stage starts from it with "
@@ -276,6 +278,7 @@ def ship(
         _git_commit(Path.cwd()),
         eval_seed,
         num_envs,
+        str(run_dir),
     )
     (folder / "MODEL_CARD.md").write_text(card)
     return folder
