@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import tomllib
 from dataclasses import dataclass
 from typing import Any
 
@@ -164,6 +165,12 @@ class Spec:
     def episode_length_s(self) -> float:
         """Longest episode in seconds."""
         return self.max_episode_steps * self.policy_dt
+
+    @property
+    def upright_pitch(self) -> float:
+        """Pitch above which the robot counts as upright in biped mode (rad; the task's I_up)."""
+        rewards = tomllib.loads(self.task_config_toml).get("rewards", {})
+        return float(rewards.get("upright_pitch", 1.4))
 
     def reward_term_index(self, name: str) -> int:
         """Column of term ``name`` in the ``reward_terms`` tensor."""

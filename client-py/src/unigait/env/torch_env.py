@@ -35,6 +35,8 @@ class TorchStep:
         final_episode_length: int64 [K] length in steps of the ended episodes.
         mode: int64 [N] task mode for the next action (1 biped, 2 quad).
         terrain_level: int64 [N] terrain level.
+        head_contact: bool [N] the head touched the terrain in this step (None when the server
+            does not report it).
     """
 
     obs: torch.Tensor
@@ -51,6 +53,7 @@ class TorchStep:
     final_episode_length: torch.Tensor
     mode: torch.Tensor
     terrain_level: torch.Tensor
+    head_contact: torch.Tensor | None = None
 
     @property
     def dones(self) -> torch.Tensor:
@@ -85,6 +88,7 @@ class TorchStep:
             final_episode_length=_t(r.final_episode_length, device, torch.int64),
             mode=_t(r.mode, device, torch.int64),
             terrain_level=_t(r.terrain_level, device, torch.int64),
+            head_contact=None if r.head_contact is None else _t(r.head_contact, device),
         )
 
 

@@ -16,7 +16,7 @@ import torch
 
 from unigait.algorithms import PPO, EstimatorLearning
 from unigait.config import TrainConfig
-from unigait.env import EpisodeStats, ObservationHistory, TorchStep, TorchVecEnv
+from unigait.env import BipedPoseStats, EpisodeStats, ObservationHistory, TorchStep, TorchVecEnv
 from unigait.modules import ActorCritic, Estimator, EstimatorActorPolicy
 from unigait.storage import RolloutStorage, bootstrap_time_outs
 from unigait.utils import Timers, TrainLogger
@@ -84,6 +84,7 @@ class OnPolicyRunner:
         )
         self.history.reset(env.last.obs)
         self.stats = EpisodeStats(env.num_envs, spec.reward_terms, self.device)
+        self.biped_pose = BipedPoseStats(spec, spec.upright_pitch, self.device)
         self.iteration = 0
         self.total_env_steps = 0
         #: The commands that trained these networks, first stage first (staged training carries
@@ -159,6 +160,7 @@ class OnPolicyRunner:
                     term_sum += nxt.reward_terms.sum(0)
                 reward_sum += float(nxt.reward.sum())
                 biped += float((nxt.mode == 1).float().mean())
+                self.biped_pose.add(step.mode, nxt)
                 level += float(nxt.terrain_level.float().mean())
             step = nxt
         with timers.time("inference"), torch.no_grad():
@@ -172,6 +174,7 @@ class OnPolicyRunner:
             "mean_step_reward": reward_sum / samples,
             "terrain_level": level / steps,
             "biped_share": biped / steps,
+            **self.biped_pose.summary(),
         }
         ep = {k: torch.cat(v) for k, v in ended.items()}
         n_ep = int(ep["reward"].numel())

@@ -19,7 +19,8 @@ PLOT_PANELS: tuple[tuple[str, str], ...] = (
     ("step_reward/biped_base_angle", "biped base angle (per step)"),
     ("step_reward/biped_tracking_lin_vel", "biped lin. velocity tracking (per step)"),
     ("terrain_level", "mean terrain level"),
-    ("biped_share", "share of biped mode"),
+    ("biped_pose/pitch", "biped mode: mean pitch (rad)"),
+    ("biped_pose/head_contact_share", "biped mode: share with head on the ground"),
     ("env_steps_per_s", "env steps/s"),
     ("learning_rate", "learning rate"),
     ("value_loss", "value loss"),
@@ -78,19 +79,36 @@ class TrainLogger:
             self.columns = list(scalars)
             with self.csv_path.open("w", newline="") as f:
                 csv.writer(f).writerow(self.columns)
+        elif new := [c for c in scalars if c not in self.columns]:
+            self._add_columns(new)
         with self.csv_path.open("a", newline="") as f:
             csv.writer(f).writerow([_fmt(scalars.get(c, math.nan)) for c in self.columns])
         for c in self.columns:
             self.history[c].append(scalars.get(c, math.nan))
         print(self._line(scalars) if self.quiet else self._block(scalars), flush=True)
 
+    def _add_columns(self, new: list[str]) -> None:
+        """A resumed run that logs more than the run it resumes: widen the CSV, old rows empty."""
+        assert self.columns is not None
+        with self.csv_path.open() as f:
+            old_rows = list(csv.reader(f))[1:]
+        self.columns += new
+        with self.csv_path.open("w", newline="") as f:
+            w = csv.writer(f)
+            w.writerow(self.columns)
+            w.writerows(row + [""] * len(new) for row in old_rows)
+        for c in new:
+            self.history[c] = [math.nan] * len(self.history["iteration"])
+
     def _line(self, s: dict[str, float]) -> str:
         return (
             f"it {int(s['iteration']):5d} | {s['env_steps_per_s']:7.0f} steps/s | "
             f"reward/step {s['mean_step_reward']:+.4f} | ep. reward {s['mean_episode_reward']:+.3f}"
             f" | ep. len {s['mean_episode_length']:6.1f} | quad track "
-            f"{s.get('step_reward/quad_tracking_lin_vel', math.nan):.4f} | biped "
-            f"{s['biped_share']:.2f} | sim/inf/upd {s['time_share/simulation']:.0%}/"
+            f"{s.get('step_reward/quad_tracking_lin_vel', math.nan):.4f} | biped pitch "
+            f"{s.get('biped_pose/pitch', math.nan):.2f} head "
+            f"{s.get('biped_pose/head_contact_share', math.nan):.2f}"
+            f" | sim/inf/upd {s['time_share/simulation']:.0%}/"
             f"{s['time_share/inference']:.0%}/{s['time_share/update']:.0%}"
         )
 
@@ -112,6 +130,12 @@ class TrainLogger:
             ("episodes ended (time-outs)", f"{int(s['episodes'])} ({int(s['time_outs'])})"),
             ("mean terrain level", f"{s['terrain_level']:.2f}"),
             ("share of biped mode", f"{s['biped_share']:.3f}"),
+            (
+                "biped mode: pitch / upright / head down",
+                f"{s.get('biped_pose/pitch', math.nan):.2f} rad / "
+                f"{s.get('biped_pose/upright_share', math.nan):.0%} / "
+                f"{s.get('biped_pose/head_contact_share', math.nan):.0%}",
+            ),
             ("value / surrogate loss", f"{s['value_loss']:.4f} / {s['surrogate_loss']:.4f}"),
             ("estimator MSE", f"{s['estimator_loss']:.5f}"),
             (
