@@ -32,6 +32,19 @@ REWARD_TERMS = [
 ]  # fmt: skip
 
 
+#: Train-config overrides for small, fast learner runs against the fakes.
+SMALL = [
+    "runner.num_steps_per_env=6",
+    "policy.actor_hidden_dims=[32, 16]",
+    "policy.critic_hidden_dims=[32, 16]",
+    "estimator.hidden_dims=[16]",
+    "estimator.mini_batch_size=16",
+    "runner.save_interval=2",
+    "runner.plot_interval=1",
+    "runner.quiet=true",
+]
+
+
 def _tensor_spec(name: str, fields: list[tuple[str, int]], dtype: int = pb.DTYPE_F32) -> object:
     msg = pb.TensorSpec(name=name, dtype=dtype)
     offset = 0

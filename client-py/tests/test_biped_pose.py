@@ -4,8 +4,7 @@ import csv
 import math
 
 import torch
-from fakes import FakeSession, proto_spec
-from test_runner import SMALL
+from fakes import SMALL, FakeSession, proto_spec
 
 from unigait.client import Spec
 from unigait.config import load_config

@@ -6,7 +6,7 @@ import math
 
 import pytest
 import torch
-from fakes import FakeSession
+from fakes import SMALL, FakeSession
 from rsl_rl.runners import OnPolicyRunner as RslOnPolicyRunner
 
 from unigait.cli import main, training_command
@@ -15,17 +15,6 @@ from unigait.env import TorchVecEnv
 from unigait.env.rsl_rl_env import RslRlVecEnv, rsl_rl_train_cfg
 from unigait.runners import OnPolicyRunner
 from unigait.ship import model_card
-
-SMALL = [
-    "runner.num_steps_per_env=6",
-    "policy.actor_hidden_dims=[32, 16]",
-    "policy.critic_hidden_dims=[32, 16]",
-    "estimator.hidden_dims=[16]",
-    "estimator.mini_batch_size=16",
-    "runner.save_interval=2",
-    "runner.plot_interval=1",
-    "runner.quiet=true",
-]
 
 
 def test_runner_trains_logs_checkpoints_and_resumes(tmp_path, capsys):
