@@ -74,6 +74,7 @@ def proto_spec(num_envs: int, max_episode_steps: int = 5) -> object:
         reward_terms=REWARD_TERMS,
         autoreset=pb.AUTORESET_MODE_SAME_STEP,
         terrain="flat",
+        task_config_toml="[rewards]\nupright_pitch = 1.4\n",
     )
     msg.tensors.append(_tensor_spec("obs", OBS_FIELDS))
     msg.tensors.append(_tensor_spec("labels", LABEL_FIELDS))

@@ -12,7 +12,13 @@ from unigait.env import BipedPoseStats, TorchStep, TorchVecEnv
 from unigait.runners import OnPolicyRunner
 
 
-def _step(spec: Spec, pitch: list[float], rear_contact: list[bool], head: list[bool]) -> TorchStep:
+def _step(
+    spec: Spec,
+    pitch: list[float],
+    rear_contact: list[bool],
+    head: list[bool] | None,
+    done: list[bool] | None = None,
+) -> TorchStep:
     n = len(pitch)
     obs = torch.zeros(n, spec.obs_dim)
     obs[:, spec.obs.field("phi").offset + 1] = torch.tensor(pitch)
@@ -28,7 +34,7 @@ def _step(spec: Spec, pitch: list[float], rear_contact: list[bool], head: list[b
         reward=torch.zeros(n),
         reward_terms=None,
         terminated=torch.zeros(n, dtype=torch.bool),
-        truncated=torch.zeros(n, dtype=torch.bool),
+        truncated=torch.tensor(done or [False] * n),
         final_env_ids=empty.long(),
         final_obs=empty,
         final_labels=empty,
@@ -36,13 +42,16 @@ def _step(spec: Spec, pitch: list[float], rear_contact: list[bool], head: list[b
         final_episode_length=empty.long(),
         mode=torch.full((n,), 2),
         terrain_level=torch.zeros(n, dtype=torch.int64),
-        head_contact=torch.tensor(head),
+        head_contact=None if head is None else torch.tensor(head),
     )
 
 
 def test_biped_pose_counts_only_biped_env_steps():
     spec = Spec.from_proto(proto_spec(4))
+    assert spec.upright_pitch == 1.4
     stats = BipedPoseStats(spec, upright_pitch=1.4, device=torch.device("cpu"))
+    # The server's layout (observation.rs): pitch is o_t[4], the rear feet's contacts e_t[5:7].
+    assert stats.pitch_index == 4 and stats.rear_feet == slice(5, 7)
     # Envs 0-2 acted in biped mode, env 3 in quad mode (upright, head down: must not count).
     mode = torch.tensor([1, 1, 1, 2])
     # Env 0 upright on its front feet; env 1 on its head with the rear feet tucked up (the
@@ -83,4 +92,18 @@ def test_a_resumed_run_widens_its_progress_csv_for_new_columns(tmp_path):
     assert old["iteration"] == new["iteration"] == "1"  # the same iteration, logged twice
     assert old["env_steps_per_s"] == "" and float(new["env_steps_per_s"]) > 0
     assert old["mean_step_reward"] == rows[1][rows[0].index("mean_step_reward")]
-    assert "biped_pose/head_contact_share" in new  # empty: the fake sessions run quad mode only
+    assert new["biped_pose/head_contact_share"] == ""  # NaN: the fakes run quad mode only
+
+
+def test_biped_pose_leaves_out_ended_episodes_and_unreported_heads():
+    spec = Spec.from_proto(proto_spec(3))
+    stats = BipedPoseStats(spec, upright_pitch=1.4, device=torch.device("cpu"))
+    biped = torch.tensor([1, 1, 1])
+    # Env 2's episode ended: its obs is the next episode's spawn (pitch 1.2, contacts cleared),
+    # which must not count. The server reports no head contact here.
+    stats.add(biped, _step(spec, [0.2, 1.5, 1.2], [True, False, False], None, [False, False, True]))
+    s = stats.summary()
+    assert math.isclose(s["biped_pose/pitch"], (0.2 + 1.5) / 2, rel_tol=1e-6)
+    assert math.isclose(s["biped_pose/upright_share"], 0.5, rel_tol=1e-6)
+    assert math.isclose(s["biped_pose/rear_feet_up_share"], 0.5, rel_tol=1e-6)
+    assert math.isnan(s["biped_pose/head_contact_share"])  # unknown, not "never"

@@ -13,7 +13,7 @@ from unigait.cli import main, training_command
 from unigait.config import load_config
 from unigait.env import TorchVecEnv
 from unigait.env.rsl_rl_env import RslRlVecEnv, rsl_rl_train_cfg
-from unigait.runners import OnPolicyRunner
+from unigait.runners import CheckpointMismatchError, OnPolicyRunner
 from unigait.ship import model_card
 
 
@@ -48,14 +48,26 @@ def test_runner_trains_logs_checkpoints_and_resumes(tmp_path, capsys):
         assert torch.equal(a, b)
     resumed.learn(1)
     assert resumed.iteration == 3
+    # Resumed from a checkpoint older than the log's last row: those rows go, not doubled.
+    again = OnPolicyRunner(TorchVecEnv(FakeSession(8)), cfg, tmp_path)
+    again.load(tmp_path / "model_2.pt")
+    again.learn(1)
+    with (tmp_path / "progress.csv").open() as f:
+        assert [r["iteration"] for r in csv.DictReader(f)] == ["1", "2", "3"]
 
     # Staged training: networks and the adaptive learning rate, not the counters or optimiser;
     # the stage commands travel with the networks, and a resume adds none.
     first = training_command(["train", "--preset", "quad_flat", "--resume", "runs/q/m.pt"])
     assert first == "python -m unigait train --preset quad_flat"
+    where = ["--server", "10.0.0.5:50051", "--tls-ca=/etc/ca.pem", "--token-file", "/run/t"]
+    assert training_command(["train", *where, "--preset", "quad_flat"]) == first
     runner.record_stage(first)
     runner.ppo._set_lr(2.5e-5)
     runner.save(tmp_path / "model_staged.pt")
+    continued = OnPolicyRunner(TorchVecEnv(FakeSession(8)), cfg, None)
+    continued.load(tmp_path / "model_staged.pt")
+    continued.record_stage(f"{first} --iterations 9000")  # resumed with another flag
+    assert continued.stages == [first]
     staged = OnPolicyRunner(TorchVecEnv(FakeSession(8)), cfg, None)
     staged.load_weights(tmp_path / "model_staged.pt")
     second = "python -m unigait train --preset unified_flat --init-from 'a b/model.pt'"
@@ -66,10 +78,25 @@ def test_runner_trains_logs_checkpoints_and_resumes(tmp_path, capsys):
     assert f"```sh\n{first}\n{second}\npython -m unigait ship" in card
     assert "- networks: actor [32, 16], critic [32, 16], estimator [16], elu: NOT Table III" in card
     assert staged.iteration == 0 and staged.ppo.learning_rate == 2.5e-5
-    other = load_config(None, [*SMALL, "policy.actor_hidden_dims=[24, 16]"])
+    # Every difference named at once, each with its --set: sizes, activation, estimator.
+    other = load_config(
+        None,
+        [
+            *SMALL,
+            "policy.actor_hidden_dims=[24, 16]",
+            'policy.activation="tanh"',
+            "estimator.hidden_dims=[8]",
+        ],
+    )
     mismatched = OnPolicyRunner(TorchVecEnv(FakeSession(8)), other, None)
-    with pytest.raises(ValueError, match=r"policy.actor_hidden_dims = \[32, 16\], this run \[24"):
+    with pytest.raises(CheckpointMismatchError) as err:
         mismatched.load_weights(tmp_path / "model_staged.pt")
+    message = str(err.value)
+    assert "policy.actor_hidden_dims = [32, 16] (this run [24, 16])" in message
+    assert "--set 'policy.actor_hidden_dims=[32, 16]'" in message
+    assert "--set 'policy.activation=\"elu\"'" in message
+    assert "--set 'estimator.hidden_dims=[16]'" in message
+    assert "critic" not in message  # the same in both
     assert not staged.ppo.optimizer.state
     for a, b in zip(
         runner.actor_critic.parameters(), staged.actor_critic.parameters(), strict=True

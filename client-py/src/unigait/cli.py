@@ -62,16 +62,34 @@ def _connection(args: argparse.Namespace) -> ConnectionOptions:
     return load_connection_options(args.tls_ca, args.token_file)
 
 
+#: Flags (each with a value) that say where a stage ran or resumed, not how it trained: left out
+#: of the recipe a checkpoint and its model card carry (addresses and credential paths are
+#: nobody else's business, and nobody else can use them).
+NOT_IN_RECIPE = frozenset(
+    {
+        "--resume",
+        "--server",
+        "--ray",
+        "--token-file",
+        "--tls-ca",
+        "--tls-server-name",
+        "--server-tls-cert",
+        "--server-tls-key",
+        "--server-token-file",
+    }
+)
+
+
 def training_command(argv: Sequence[str]) -> str:
-    """The shell line of a training stage, without the flags that only say where it resumed."""
+    """The shell line of a training stage, without where it ran, resumed or got credentials."""
     kept: list[str] = []
     skip = False
     for arg in argv:
         if skip:
             skip = False
-        elif arg == "--resume":
+        elif arg in NOT_IN_RECIPE:
             skip = True
-        elif not arg.startswith("--resume="):
+        elif arg.split("=", 1)[0] not in NOT_IN_RECIPE:
             kept.append(arg)
     return shlex.join(["python", "-m", "unigait", *kept])
 
@@ -81,7 +99,7 @@ def _train(args: argparse.Namespace) -> int:
 
     from unigait.config import load_config
     from unigait.env import TorchVecEnv
-    from unigait.runners import OnPolicyRunner
+    from unigait.runners import CheckpointMismatchError, OnPolicyRunner
 
     overrides = list(args.set or [])
     if args.num_envs is not None:
@@ -159,7 +177,7 @@ def _train(args: argparse.Namespace) -> int:
                 elif args.init_from:
                     runner.load_weights(args.init_from)
                     print(f"networks initialised from {args.init_from}")
-            except ValueError as err:  # a checkpoint of other networks
+            except CheckpointMismatchError as err:
                 print(f"error: {err}", file=sys.stderr)
                 return 2
             runner.record_stage(training_command(args.argv))

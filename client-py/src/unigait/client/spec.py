@@ -169,8 +169,11 @@ class Spec:
     @property
     def upright_pitch(self) -> float:
         """Pitch above which the robot counts as upright in biped mode (rad; the task's I_up)."""
-        rewards = tomllib.loads(self.task_config_toml).get("rewards", {})
-        return float(rewards.get("upright_pitch", 1.4))
+        try:
+            return float(tomllib.loads(self.task_config_toml)["rewards"]["upright_pitch"])
+        except (tomllib.TOMLDecodeError, KeyError) as err:
+            msg = f"the session's task config has no rewards.upright_pitch ({err})"
+            raise ValueError(msg) from None
 
     def reward_term_index(self, name: str) -> int:
         """Column of term ``name`` in the ``reward_terms`` tensor."""

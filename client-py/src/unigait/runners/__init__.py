@@ -1,5 +1,9 @@
 """The training loop."""
 
-from unigait.runners.on_policy_runner import OnPolicyRunner, build_networks
+from unigait.runners.on_policy_runner import (
+    CheckpointMismatchError,
+    OnPolicyRunner,
+    build_networks,
+)
 
-__all__ = ["OnPolicyRunner", "build_networks"]
+__all__ = ["CheckpointMismatchError", "OnPolicyRunner", "build_networks"]

@@ -22,6 +22,20 @@ from unigait.storage import RolloutStorage, bootstrap_time_outs
 from unigait.utils import Timers, TrainLogger
 
 
+class CheckpointMismatchError(ValueError):
+    """A checkpoint of other networks than this run's (its message says which ``--set``)."""
+
+
+def _plain(value: object) -> object:
+    """Sequences as lists (the config holds tuples, a checkpoint's TOML-loaded copy lists)."""
+    return list(value) if isinstance(value, list | tuple) else value
+
+
+def _toml_value(value: object) -> str:
+    """``value`` as it goes on the right of a ``--set key=value``."""
+    return f'"{value}"' if isinstance(value, str) else str(value)
+
+
 def build_networks(
     cfg: TrainConfig, obs_dim: int, label_dim: int, privileged_dim: int, num_actions: int
 ) -> tuple[ActorCritic, Estimator]:
@@ -88,8 +102,10 @@ class OnPolicyRunner:
         self.iteration = 0
         self.total_env_steps = 0
         #: The commands that trained these networks, first stage first (staged training carries
-        #: the parent checkpoint's list; a resumed run adds its own line): a model card's recipe.
+        #: the parent checkpoint's list and adds its own line; a resumed run adds none): a
+        #: model card's recipe.
         self.stages: list[str] = []
+        self.resumed = False
         self.timers = Timers()
         self.log_dir = log_dir
         self.logger: TrainLogger | None = None
@@ -259,15 +275,34 @@ class OnPolicyRunner:
         torch.save(state, path.with_name("model_latest.pt"))
 
     def _check_networks(self, path: str | Path, state: dict[str, Any]) -> None:
-        """Refuse, naming both, a checkpoint whose network sizes are not this run's."""
-        theirs = state.get("config", {}).get("policy", {})
-        ours = self.cfg.policy
-        for key in ("actor_hidden_dims", "critic_hidden_dims"):
-            if key in theirs and list(theirs[key]) != list(getattr(ours, key)):
-                raise ValueError(
-                    f"{path} has policy.{key} = {list(theirs[key])}, this run "
-                    f"{list(getattr(ours, key))}: pass --set 'policy.{key}={list(theirs[key])}'"
-                )
+        """Refuse, naming every difference, a checkpoint whose networks are not this run's.
+
+        Sizes and the history length would fail in ``load_state_dict`` with torch's shape
+        error; another activation would load silently into a different function.
+        """
+        saved = state.get("config", {})
+        wanted = {
+            "policy": self.cfg.policy,
+            "estimator": self.cfg.estimator,
+        }
+        keys = {
+            "policy": ("actor_hidden_dims", "critic_hidden_dims", "activation", "history_length"),
+            "estimator": ("hidden_dims",),
+        }
+        differences = []
+        for section, names in keys.items():
+            theirs = saved.get(section, {})
+            for name in names:
+                if name not in theirs:
+                    continue
+                ours = _plain(getattr(wanted[section], name))
+                their_value = _plain(theirs[name])
+                if their_value != ours:
+                    differences.append((f"{section}.{name}", their_value, ours))
+        if differences:
+            found = "; ".join(f"{k} = {t!r} (this run {o!r})" for k, t, o in differences)
+            sets = " ".join(f"--set '{k}={_toml_value(t)}'" for k, t, _ in differences)
+            raise CheckpointMismatchError(f"{path} has {found}: pass {sets}")
 
     def load_weights(self, path: str | Path) -> None:
         """Take the networks of a checkpoint (staged training); optimisers and counters stay.
@@ -299,8 +334,17 @@ class OnPolicyRunner:
         self.iteration = int(state["iteration"])
         self.total_env_steps = int(state.get("total_env_steps", 0))
         self.stages = list(state.get("stages", []))
+        self.resumed = True
+        if self.logger is not None:
+            self.logger.drop_after(self.iteration)
 
     def record_stage(self, command: str) -> None:
-        """Note the command now training these networks (once: a resume of it adds nothing)."""
+        """Note the command now training these networks.
+
+        A resumed run adds nothing, whatever flags it was resumed with (more iterations, another
+        log directory), unless its checkpoint recorded no stage at all.
+        """
+        if self.resumed and self.stages:
+            return
         if not self.stages or self.stages[-1] != command:
             self.stages.append(command)

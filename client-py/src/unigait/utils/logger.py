@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import math
+import os
 import time
 from collections import defaultdict
 from collections.abc import Iterator
@@ -87,18 +88,49 @@ class TrainLogger:
             self.history[c].append(scalars.get(c, math.nan))
         print(self._line(scalars) if self.quiet else self._block(scalars), flush=True)
 
+    def _read_rows(self) -> list[list[str]]:
+        """The CSV's data rows as written (header left out)."""
+        with self.csv_path.open() as f:
+            return list(csv.reader(f))[1:]
+
+    def _rewrite(self, rows: list[list[str]]) -> None:
+        """Replace the CSV by header + ``rows``.
+
+        Written to a temporary file first: an interrupted rewrite leaves the old log whole.
+        """
+        assert self.columns is not None
+        tmp = self.csv_path.with_suffix(".csv.tmp")
+        with tmp.open("w", newline="") as f:
+            w = csv.writer(f)
+            w.writerow(self.columns)
+            w.writerows(rows)
+        os.replace(tmp, self.csv_path)
+
     def _add_columns(self, new: list[str]) -> None:
         """A resumed run that logs more than the run it resumes: widen the CSV, old rows empty."""
         assert self.columns is not None
-        with self.csv_path.open() as f:
-            old_rows = list(csv.reader(f))[1:]
+        old_rows = self._read_rows()
         self.columns += new
-        with self.csv_path.open("w", newline="") as f:
-            w = csv.writer(f)
-            w.writerow(self.columns)
-            w.writerows(row + [""] * len(new) for row in old_rows)
+        self._rewrite([row + [""] * len(new) for row in old_rows])
         for c in new:
-            self.history[c] = [math.nan] * len(self.history["iteration"])
+            self.history[c] = [math.nan] * len(old_rows)
+
+    def drop_after(self, iteration: int) -> None:
+        """Forget the rows logged past ``iteration``.
+
+        A run resumed from an older checkpoint than its log's last row trains those iterations
+        again; without this the log holds them twice and the plot doubles back.
+        """
+        if self.columns is None or "iteration" not in self.columns:
+            return
+        its = self.history["iteration"]
+        keep = [i for i, it in enumerate(its) if not it > iteration]
+        if len(keep) == len(its):
+            return
+        rows = self._read_rows()
+        self._rewrite([rows[i] for i in keep])
+        for c in list(self.history):
+            self.history[c] = [self.history[c][i] for i in keep]
 
     def _line(self, s: dict[str, float]) -> str:
         return (
