@@ -183,6 +183,40 @@ fn head_contact_is_reported_but_neither_terminates_nor_penalises() {
     assert!(head_steps >= 3, "only {head_steps} steps on the head alone");
 }
 
+/// A robot resting on its head alone gets the extra solver iterations of a fallen robot, unless
+/// `physics.extra_iterations_on_head_contact` turns that off (README: measured, kept on).
+#[test]
+fn head_contact_extra_iterations_follow_their_switch() {
+    let model = RobotModel::go2();
+    let q = default_q(&model);
+    let zeros = vec![0.0; NUM_JOINTS];
+    for (overrides, expected) in [
+        ("", true),
+        ("[physics]\nextra_iterations_on_head_contact = false", false),
+    ] {
+        let mut env = batch(calm_config(overrides), 1, 0, 1);
+        let rot = Rotation::from_rotation_y(FRAC_PI_2);
+        env.teleport_env(0, pose_with_lowest_point(&model, rot, &q, 0.003), &q);
+        let mut head_only = 0;
+        for step in 0..15 {
+            env.step(&zeros).expect("step");
+            let s = *env.robot_state(0);
+            let only_head = s.head_force > 1.0
+                && s.trunk_force == 0.0
+                && s.penalised_contacts == 0
+                && s.other_contacts == 0;
+            if only_head {
+                head_only += 1;
+                assert_eq!(
+                    s.extra_iterations, expected,
+                    "step {step}, overrides {overrides:?}"
+                );
+            }
+        }
+        assert!(head_only >= 3, "only {head_only} steps on the head alone");
+    }
+}
+
 /// The trunk still terminates: a robot tipped back (pitch -0.3) with its legs folded up,
 /// dropped onto its rear trunk edge, ends its episode.
 #[test]

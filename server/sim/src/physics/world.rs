@@ -37,6 +37,9 @@ pub struct PhysicsParams {
     /// drifts up to 12 mm, with 4 up to 6 mm); about 15% of robots need them under random
     /// actions, 68% when fallen robots are never reset.
     pub extra_pgs_iterations_on_leg_contact: usize,
+    /// Whether a robot whose head touches the terrain (and nothing but its feet otherwise) also
+    /// gets those extra iterations. Default true.
+    pub extra_iterations_on_head_contact: bool,
     /// Floor on each diagonal entry of a leg link's inertia tensor (kg m^2). Default 0.002.
     /// The Go2's hips and calves are very light about the axes they do not turn on (down to
     /// 4e-5), and an impulse solver shares the motors' reaction torques badly through such
@@ -55,6 +58,7 @@ impl Default for PhysicsParams {
             gravity: 9.81,
             extra_iterations_on_leg_contact: 0,
             extra_pgs_iterations_on_leg_contact: 6,
+            extra_iterations_on_head_contact: true,
             min_link_inertia: 0.002,
         }
     }
@@ -135,6 +139,7 @@ pub struct RobotWorld {
     min_link_inertia: f32,
     extra_on_leg_contact: usize,
     extra_pgs_on_leg_contact: usize,
+    extra_on_head_contact: bool,
     robots: Vec<RobotHandles>,
     /// Robots currently given extra solver iterations.
     extra_iterations: Vec<bool>,
@@ -177,6 +182,7 @@ impl RobotWorld {
             min_link_inertia: params.min_link_inertia,
             extra_on_leg_contact: params.extra_iterations_on_leg_contact,
             extra_pgs_on_leg_contact: params.extra_pgs_iterations_on_leg_contact,
+            extra_on_head_contact: params.extra_iterations_on_head_contact,
             extra_iterations: vec![false; count],
             faulted: vec![false; count],
             robots: Vec::with_capacity(count),
@@ -473,10 +479,8 @@ impl RobotWorld {
                 s.q[j].min(ahead) < joint.sim_lower + reach
                     || s.q[j].max(ahead) > joint.sim_upper - reach
             });
-            // A robot resting on its head is as hard to solve as one lying on its legs.
-            let hard = s.penalised_contacts + s.other_contacts > 0
-                || s.head_force > CONTACT_FORCE_THRESHOLD
-                || at_limit;
+            let on_head = self.extra_on_head_contact && s.head_force > CONTACT_FORCE_THRESHOLD;
+            let hard = s.penalised_contacts + s.other_contacts > 0 || on_head || at_limit;
             s.extra_iterations = hard;
             if self.extra_iterations[slot] != hard {
                 self.extra_iterations[slot] = hard;
