@@ -1,5 +1,7 @@
 """The Python client against the real server: round trip, spec, autoreset, errors, sharding."""
 
+import time
+
 import numpy as np
 import pytest
 from unigait.client import (
@@ -107,6 +109,18 @@ def test_errors_map_to_status_codes(server):
         # The bad requests left the session usable.
         assert s.step_unary(np.zeros((4, 12), np.float32)).obs.shape == (4, 53)
         s.close()
+
+
+def test_a_paused_client_steps_on_after_the_stream_idle_timeout(start_server):
+    # A learner paused (a debugger, SIGSTOP, a laptop lid) longer than the stream idle timeout
+    # finds its stream ended by the server; the next step opens a new one on the same session.
+    address = start_server("--stream-idle-timeout", "1")
+    with open_session(address, SessionConfig(num_envs=2, seed=3)) as session:
+        actions = np.zeros((2, 12), np.float32)
+        first = session.step(actions)
+        time.sleep(3.0)
+        second = session.step(actions)
+        assert second.step_count == first.step_count + 1  # the same session, one step later
 
 
 def test_sharding_across_two_servers(server, start_server):

@@ -168,6 +168,10 @@ class _StepStream:
         self._requests: queue.SimpleQueue[Any] = queue.SimpleQueue()
         self._responses: Any = stub.StepStream(iter(self._requests.get, _END))
 
+    def ended(self) -> bool:
+        """The server has already ended the call (say, after its stream idle timeout)."""
+        return bool(self._responses.done())
+
     def step(self, request: Any) -> Any:
         self._requests.put(request)
         try:
@@ -236,6 +240,11 @@ class Session(ClosesOnExit):
         Raises:
             UnigaitError: The server refused the step (the stream is reopened on the next call).
         """
+        if self._stream is not None and self._stream.ended():
+            # The server closed an idle stream (a learner paused longer than the server's
+            # --stream-idle-timeout) before this request: nothing was lost, so open a new one
+            # instead of failing the step. The session itself lives on (--idle-timeout).
+            self._stream = None
         if self._stream is None:
             self._stream = _StepStream(self.client.stub)
         try:
