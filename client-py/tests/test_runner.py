@@ -75,6 +75,14 @@ def test_runner_trains_logs_checkpoints_and_resumes(tmp_path, capsys):
     staged.record_stage(second)
     assert staged.stages == [first, second]
     card = model_card("u", "unified_flat", staged.state_dict(), {}, [], "abc", 1000, 8)
+    assert "Biped mode" not in card  # no biped evaluation, no line
+    biped_eval = {"tracking/biped/mean_pitch_rad": 0.5, "head_contact_share": 0.75}
+    with_biped = model_card(
+        "u", "unified_flat", staged.state_dict(), {"tracking_biped": biped_eval}, [], "a", 1, 8
+    )
+    assert "mean pitch 0.50 rad (upright above 1.4), head on the ground 75% of the time" in (
+        with_biped
+    )
     assert f"```sh\n{first}\n{second}\npython -m unigait ship" in card
     assert "- networks: actor [32, 16], critic [32, 16], estimator [16], elu: NOT Table III" in card
     assert staged.iteration == 0 and staged.ppo.learning_rate == 2.5e-5

@@ -156,6 +156,15 @@ def model_card(
             f"| {c.label} | `{c.scenario}` | `{c.metric}` | {c.op} {c.bound} | {shown} | "
             f"{'yes' if c.passes(v) else 'no'} |"
         )
+    biped = evals.get("tracking_biped", {})
+    if "tracking/biped/mean_pitch_rad" in biped:
+        # Progress the milestone table does not show until the robot is upright.
+        lines += [
+            "",
+            f"Biped mode (`tracking_biped`): mean pitch "
+            f"{biped['tracking/biped/mean_pitch_rad']:.2f} rad (upright above 1.4), head on "
+            f"the ground {biped.get('head_contact_share', float('nan')):.0%} of the time.",
+        ]
     stages = [str(s) for s in checkpoint.get("stages", [])]
     if stages:
         recipe = (

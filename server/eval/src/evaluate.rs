@@ -211,11 +211,16 @@ pub fn evaluate_scenario(
             .metrics
             .insert("tracking/biped/upright_share".into(), share);
     }
+    if let Some(pitch) = outcomes.mean_biped_pitch() {
+        report
+            .metrics
+            .insert("tracking/biped/mean_pitch_rad".into(), pitch);
+    }
     report.notes.push(format!(
         "tracking/<mode>/termination_rate: share of the episodes (ended, or running at the end) \
          ended by a termination, by the mode they ended in; tracking/biped/upright_share: share \
          of biped-mode steps at least {UPRIGHT_SETTLE_S} s into their episode and mode with \
-         pitch > {UPRIGHT_PITCH} rad"
+         pitch > {UPRIGHT_PITCH} rad; tracking/biped/mean_pitch_rad: their mean pitch"
     ));
     let tracking = &tracking.tracking;
     for (mode, acc) in [(Mode::Biped, &tracking[0]), (Mode::Quad, &tracking[1])] {

@@ -228,6 +228,9 @@ pub struct EpisodeOutcomes {
     pub biped_steps: u64,
     /// Of those, the steps with pitch > [`UPRIGHT_PITCH`].
     pub upright_steps: u64,
+    /// Sum of the pitch over the same steps (rad): how far up a policy that is not upright yet
+    /// gets (resting on its head is about 0.3).
+    pub pitch_sum: f64,
 }
 
 impl EpisodeOutcomes {
@@ -239,6 +242,7 @@ impl EpisodeOutcomes {
         }
         self.biped_steps += other.biped_steps;
         self.upright_steps += other.upright_steps;
+        self.pitch_sum += other.pitch_sum;
     }
 
     /// Share of the episodes of mode index `m` (0 biped, 1 quad) ended by a termination.
@@ -249,6 +253,11 @@ impl EpisodeOutcomes {
     /// Share of the counted biped steps spent upright.
     pub fn upright_share(&self) -> Option<f64> {
         rate(self.upright_steps as usize, self.biped_steps as usize)
+    }
+
+    /// Mean pitch over the counted biped steps (rad).
+    pub fn mean_biped_pitch(&self) -> Option<f64> {
+        (self.biped_steps > 0).then(|| self.pitch_sum / self.biped_steps as f64)
     }
 }
 
@@ -331,17 +340,21 @@ mod test {
             episodes: [4, 2],
             biped_steps: 10,
             upright_steps: 9,
+            pitch_sum: 15.0,
         };
         a.merge(&EpisodeOutcomes {
             terminated: [0, 1],
             episodes: [0, 2],
             biped_steps: 10,
             upright_steps: 8,
+            pitch_sum: 14.0,
         });
         assert_eq!(a.termination_rate(0), Some(0.25));
         assert_eq!(a.termination_rate(1), Some(0.25));
         assert_eq!(a.upright_share(), Some(17.0 / 20.0));
+        assert_eq!(a.mean_biped_pitch(), Some(29.0 / 20.0));
         assert_eq!(EpisodeOutcomes::default().termination_rate(0), None);
+        assert_eq!(EpisodeOutcomes::default().mean_biped_pitch(), None);
     }
 
     #[test]

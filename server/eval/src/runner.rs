@@ -304,6 +304,7 @@ impl Rollout {
             if end == 0 && p.mode == Some(Mode::Biped) && in_mode >= self.upright_settle_steps {
                 self.outcomes.biped_steps += 1;
                 self.outcomes.upright_steps += u64::from(p.pitch > UPRIGHT_PITCH);
+                self.outcomes.pitch_sum += f64::from(p.pitch);
             }
             let settled = in_mode >= self.settle_steps;
             if !settled || end != 0 {
