@@ -35,7 +35,6 @@ from unigait.mujoco.vec_env import lowest_collider_z
 POLICY_STEPS = 100
 DECIMATION = 4
 SPAWN_CLEARANCE_M = 0.02
-PITCH_OBS = 4  # o_t[4]: Euler pitch (rad, + nose down)
 #: Policy steps compared; a release is compared while it moves (10-40) and at rest (60, 100).
 COMPARED = (0, 10, 20, 30, 40, 60, 100)
 TOLERANCE_RAD = 0.1
@@ -83,13 +82,15 @@ enabled = false
     session = open_session(
         address, SessionConfig(num_envs=1, seed=3, task_overrides_toml=overrides)
     )
+    # o_t's "phi" field is (gravity y, Euler pitch (rad, + nose down), gravity z).
+    pitch = session.spec.obs.field("phi").offset + 1
     try:
-        pitches = [float(session.reset().obs[0, PITCH_OBS])]
+        pitches = [float(session.reset().obs[0, pitch])]
         zero = np.zeros((1, 12), dtype=np.float32)
         for _ in range(POLICY_STEPS):
             step = session.step(zero)
             assert not step.terminated[0] and not step.truncated[0], "the release ended early"
-            pitches.append(float(step.obs[0, PITCH_OBS]))
+            pitches.append(float(step.obs[0, pitch]))
     finally:
         session.close()
     return pitches
