@@ -28,6 +28,7 @@ from unigait.client import Client, UnigaitError  # noqa: E402
 from unigait.config import load_config  # noqa: E402
 from unigait.env import TorchVecEnv  # noqa: E402
 from unigait.ray import (  # noqa: E402
+    PoolConfigError,
     ResilientRunner,
     ServerCredentials,
     ServerPool,
@@ -369,9 +370,9 @@ def test_untrusted_certificate_fails_fast(cluster, server_bin, tls_files, tmp_pa
 
 
 def test_servers_beyond_loopback_need_tls_and_a_token():
-    with pytest.raises(ValueError, match="requires TLS and a bearer token"):
+    with pytest.raises(PoolConfigError, match="requires TLS and a bearer token"):
         ServerPool(1, 1, host=None)  # each node's IP
-    with pytest.raises(ValueError, match="requires TLS and a bearer token"):
+    with pytest.raises(PoolConfigError, match="requires TLS and a bearer token"):
         ServerPool(1, 1, host="0.0.0.0", credentials=ServerCredentials(token=TOKEN))
     with pytest.raises(ValueError, match="at least 16"):
         ServerCredentials(token="short")

@@ -139,7 +139,7 @@ def _train(args: argparse.Namespace) -> int:
         reward_terms=True,
     )
     if args.ray is not None:  # servers as Ray actors, lost ones replaced: unigait.ray
-        from unigait.ray import ServerCredentials, train_on_ray
+        from unigait.ray import PoolConfigError, ServerCredentials, train_on_ray
 
         credentials = ServerCredentials.from_files(
             tls_ca=args.tls_ca,
@@ -161,7 +161,7 @@ def _train(args: argparse.Namespace) -> int:
                 credentials=credentials,
                 host=None if args.server_host == "node" else args.server_host,
             )
-        except (PermissionError, ConnectionError, ValueError) as err:  # token, TLS, checkpoint
+        except (PermissionError, ConnectionError, PoolConfigError, CheckpointMismatchError) as err:
             print(f"error: {err}", file=sys.stderr)
             return 2
         return 0

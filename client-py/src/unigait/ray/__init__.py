@@ -30,10 +30,11 @@ from typing import Any
 
 from unigait.ray.credentials import ServerCredentials
 from unigait.ray.health import check_health, probe_health, wait_healthy
-from unigait.ray.pool import ServerPlacement, ServerPool, ship_binary_env
+from unigait.ray.pool import PoolConfigError, ServerPlacement, ServerPool, ship_binary_env
 from unigait.ray.server_actor import ServerActor
 
 __all__ = [
+    "PoolConfigError",
     "ResilientRunner",
     "ServerActor",
     "ServerCredentials",

@@ -93,6 +93,10 @@ def ship_binary_env(binary: str | Path, directory: str | Path) -> tuple[dict[str
     return {"working_dir": str(directory)}, f"./{SHIPPED_NAME}"
 
 
+class PoolConfigError(ValueError):
+    """A pool or a Ray training run asked for what cannot work, refused before anything starts."""
+
+
 @dataclass(frozen=True)
 class ServerPlacement:
     """Where one pool member's server runs.
@@ -143,7 +147,8 @@ class ServerPool(ClosesOnExit):
             plaintext, no token: loopback only).
 
     Raises:
-        ValueError: Servers beyond loopback without TLS and a token (the server refuses them).
+        PoolConfigError: Servers beyond loopback without TLS and a token (the server refuses
+            them), or no server or CPU at all.
 
     Attributes:
         members: Where each server runs (updated after restarts).
@@ -170,12 +175,12 @@ class ServerPool(ClosesOnExit):
         credentials: ServerCredentials | None = None,
     ) -> None:
         if num_servers < 1 or cpus_per_server < 1:
-            raise ValueError("a pool needs at least one server with at least one CPU")
+            raise PoolConfigError("a pool needs at least one server with at least one CPU")
         beyond_loopback = host is None or not parse_address(f"[{host}]:0").is_loopback
         if beyond_loopback and not (
             credentials is not None and credentials.tls and credentials.server_token
         ):
-            raise ValueError(
+            raise PoolConfigError(
                 f"servers bound to {host or 'the nodes IPs'} are reachable beyond loopback, where "
                 "unigait-server requires TLS and a bearer token: pass credentials="
                 "ServerCredentials(cert_file=..., key_file=..., token=...) (CLI: "

@@ -32,7 +32,7 @@ from unigait.client.types import SessionConfig
 from unigait.config import TrainConfig
 from unigait.env import TorchVecEnv
 from unigait.ray.credentials import ServerCredentials
-from unigait.ray.pool import ServerPool, ship_binary_env
+from unigait.ray.pool import PoolConfigError, ServerPool, ship_binary_env
 from unigait.runners import OnPolicyRunner
 
 log = logging.getLogger(__name__)
@@ -151,7 +151,9 @@ def train_on_ray(
     import ray
 
     if cfg.env.servers:
-        raise ValueError("train_on_ray starts its own servers: leave env.servers (--server) empty")
+        raise PoolConfigError(
+            "train_on_ray starts its own servers: leave env.servers (--server) empty"
+        )
     if not logging.getLogger().handlers:  # show lost servers and restarts
         logging.basicConfig(stream=sys.stderr, format="%(name)s: %(message)s")
     connected_here = not ray.is_initialized()
@@ -165,7 +167,7 @@ def train_on_ray(
         runtime_env = None
         if ship_binary is not None:
             if not connected_here:
-                raise ValueError("ship_binary: the job's runtime env is set when Ray connects")
+                raise PoolConfigError("ship_binary: the job's runtime env is set when Ray connects")
             runtime_env, options["binary"] = ship_binary_env(ship_binary, staging)
         if connected_here:
             ray.init(address=address or None, runtime_env=runtime_env)
