@@ -17,9 +17,16 @@ import torch
 from unigait.algorithms import PPO, EstimatorLearning
 from unigait.config import TrainConfig
 from unigait.env import BipedPoseStats, EpisodeStats, ObservationHistory, TorchStep, TorchVecEnv
+from unigait.env.biped_pose import BIPED_MODE
 from unigait.modules import ActorCritic, Estimator, EstimatorActorPolicy
 from unigait.storage import RolloutStorage, bootstrap_time_outs
 from unigait.utils import Timers, TrainLogger
+
+#: Config keys (by section) that shape the networks a checkpoint holds.
+NETWORK_KEYS = (
+    ("policy", ("actor_hidden_dims", "critic_hidden_dims", "activation", "history_length")),
+    ("estimator", ("hidden_dims",)),
+)
 
 
 class CheckpointMismatchError(ValueError):
@@ -175,7 +182,7 @@ class OnPolicyRunner:
                 if nxt.reward_terms is not None:
                     term_sum += nxt.reward_terms.sum(0)
                 reward_sum += float(nxt.reward.sum())
-                biped += float((nxt.mode == 1).float().mean())
+                biped += float((nxt.mode == BIPED_MODE).float().mean())
                 self.biped_pose.add(step.mode, nxt)
                 level += float(nxt.terrain_level.float().mean())
             step = nxt
@@ -281,21 +288,13 @@ class OnPolicyRunner:
         error; another activation would load silently into a different function.
         """
         saved = state.get("config", {})
-        wanted = {
-            "policy": self.cfg.policy,
-            "estimator": self.cfg.estimator,
-        }
-        keys = {
-            "policy": ("actor_hidden_dims", "critic_hidden_dims", "activation", "history_length"),
-            "estimator": ("hidden_dims",),
-        }
         differences = []
-        for section, names in keys.items():
+        for section, names in NETWORK_KEYS:
             theirs = saved.get(section, {})
             for name in names:
                 if name not in theirs:
                     continue
-                ours = _plain(getattr(wanted[section], name))
+                ours = _plain(getattr(getattr(self.cfg, section), name))
                 their_value = _plain(theirs[name])
                 if their_value != ours:
                     differences.append((f"{section}.{name}", their_value, ours))
