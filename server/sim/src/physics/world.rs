@@ -489,7 +489,8 @@ impl RobotWorld {
                 } else {
                     (0, 0)
                 };
-                // A robot is its own solver island, which takes the maximum over its bodies.
+                // Rapier groups jointed bodies for their extra iterations (the maximum over the group); the
+                // trunk carries the robot's, and robots sharing a value are solved as one group.
                 let trunk = &mut self.bodies[self.robots[slot].bodies[0]];
                 trunk.set_additional_solver_iterations(substeps);
                 trunk.set_additional_pgs_iterations(pgs);
