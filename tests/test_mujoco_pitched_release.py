@@ -82,8 +82,7 @@ enabled = false
     session = open_session(
         address, SessionConfig(num_envs=1, seed=3, task_overrides_toml=overrides)
     )
-    # o_t's "phi" field is (gravity y, Euler pitch (rad, + nose down), gravity z).
-    pitch = session.spec.obs.field("phi").offset + 1
+    pitch = session.spec.pitch_index  # Euler pitch (rad, + nose down) in o_t
     try:
         pitches = [float(session.reset().obs[0, pitch])]
         zero = np.zeros((1, 12), dtype=np.float32)

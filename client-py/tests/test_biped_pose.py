@@ -21,7 +21,7 @@ def _step(
 ) -> TorchStep:
     n = len(pitch)
     obs = torch.zeros(n, spec.obs_dim)
-    obs[:, spec.obs.field("phi").offset + 1] = torch.tensor(pitch)
+    obs[:, spec.pitch_index] = torch.tensor(pitch)
     labels = torch.zeros(n, spec.label_dim)
     contact = spec.labels.field("foot_contact").offset
     labels[:, contact : contact + 2] = 1.0  # front feet down everywhere

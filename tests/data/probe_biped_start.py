@@ -2,9 +2,9 @@
 
 Every env starts in biped mode at a pitch drawn from [--pitch LOW HIGH] (nose-down, rad), at
 rest, no random episode start; both runs use the same seed, so the same starts. Prints, per
-run, the median pitch over the surviving envs at a few steps, the share of them upright
-(pitch > the task's 1.4 rad), how many are still alive (no termination) and the share of
-biped env-steps with the head on the ground, e.g.::
+run, the median pitch over the surviving envs at a few steps, the share of them upright (above
+the task's upright threshold, 1.4 rad), how many are still alive (no termination) and the share
+of biped env-steps with the head on the ground, e.g.::
 
     UNIGAIT_SERVER_BIN=target/release/unigait-server \\
         .venv/bin/python tests/data/probe_biped_start.py runs/unified_flat_v2/model_latest.pt \\
@@ -23,27 +23,28 @@ import torch
 from unigait.client import SessionConfig, open_session
 from unigait.env import ObservationHistory, TorchVecEnv
 from unigait.export import load_policy
+from unigait.modules import EstimatorActorPolicy
 from unigait.server_process import LocalServer
 
 REPORT_STEPS = (0, 5, 10, 25, 50, 100)
-UPRIGHT_PITCH = 1.4
 
 
-def run(address: str, checkpoint: str, use_policy: bool, args: argparse.Namespace) -> str:
-    """One batch of pitched starts; a line of figures."""
+def run(
+    address: str, policy: EstimatorActorPolicy | None, obs_dim: int, args: argparse.Namespace
+) -> str:
+    """One batch of pitched starts, driven by ``policy`` (None: zero action); a line of figures."""
     n = args.envs
     overrides = (
         "[modes]\nbiped_probability = 1.0\nresampling_time_s = 60.0\n"
         "[env]\nrandom_initial_episode_step = false\n"
         f"[init]\npitch = [{args.pitch[0]}, {args.pitch[1]}]\n"
     )
-    policy, dims = load_policy(checkpoint)
     session = open_session(
         address, SessionConfig(num_envs=n, seed=args.seed, task_overrides_toml=overrides)
     )
     env = TorchVecEnv(session, "cpu")
-    pitch_index = env.spec.obs.field("phi").offset + 1
-    history = ObservationHistory(n, 3, dims["obs_dim"], torch.device("cpu"))
+    pitch_index, upright_pitch = env.spec.pitch_index, env.spec.upright_pitch
+    history = ObservationHistory(n, 3, obs_dim, torch.device("cpu"))
     history.reset(env.last.obs)
     alive = torch.ones(n, dtype=torch.bool)
     pitch = env.last.obs[:, pitch_index].clone()
@@ -53,12 +54,12 @@ def run(address: str, checkpoint: str, use_policy: bool, args: argparse.Namespac
         if step in REPORT_STEPS:
             live = pitch[alive].tolist()
             median = statistics.median(live) if live else float("nan")
-            upright = sum(p > UPRIGHT_PITCH for p in live) / max(len(live), 1)
+            upright = sum(p > upright_pitch for p in live) / max(len(live), 1)
             figures.append(f"{step}: {median:.2f} ({upright:.0%} up, {len(live)} alive)")
         if step == max(REPORT_STEPS):
             break
         with torch.no_grad():
-            actions = policy(history.flat.view(n, 3, -1)) if use_policy else torch.zeros(n, 12)
+            actions = torch.zeros(n, 12) if policy is None else policy(history.flat.view(n, 3, -1))
         out = env.step(actions)
         alive &= ~out.dones
         history.push(out.obs, out.dones)
@@ -68,7 +69,7 @@ def run(address: str, checkpoint: str, use_policy: bool, args: argparse.Namespac
             head_hits += int((alive & out.head_contact).sum())
     env.close()
     head = f"{head_hits / head_steps:.0%}" if head_steps else "n/a"
-    label = "policy" if use_policy else "zero action"
+    label = "zero action" if policy is None else "policy"
     return f"{label:>11}: median pitch at step " + "; ".join(figures) + f"; head down {head}"
 
 
@@ -79,9 +80,10 @@ def main() -> None:
     parser.add_argument("--envs", type=int, default=64)
     parser.add_argument("--seed", type=int, default=7)
     args = parser.parse_args()
+    policy, dims = load_policy(args.checkpoint)
     with LocalServer() as server:
-        for use_policy in (True, False):
-            print(run(server.address, args.checkpoint, use_policy, args))
+        for driver in (policy, None):
+            print(run(server.address, driver, dims["obs_dim"], args))
 
 
 if __name__ == "__main__":

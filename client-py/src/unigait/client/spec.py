@@ -167,6 +167,14 @@ class Spec:
         return self.max_episode_steps * self.policy_dt
 
     @property
+    def pitch_index(self) -> int:
+        """Column of the Euler pitch (rad, + nose down) in o_t.
+
+        o_t's "phi" field is (gravity y, Euler pitch, gravity z): pitch is its second entry.
+        """
+        return self.obs.field("phi").offset + 1
+
+    @property
     def upright_pitch(self) -> float:
         """Pitch above which the robot counts as upright in biped mode (rad; the task's I_up)."""
         try:

@@ -31,8 +31,7 @@ class BipedPoseStats:
     """
 
     def __init__(self, spec: Spec, upright_pitch: float, device: torch.device) -> None:
-        # o_t's "phi" field is (gravity y, Euler pitch, gravity z); pitch is its second entry.
-        self.pitch_index = spec.obs.field("phi").offset + 1
+        self.pitch_index = spec.pitch_index
         contact = spec.labels.field("foot_contact")
         # Feet in FL, FR, RL, RR order: the last two are the rear feet.
         self.rear_feet = slice(contact.offset + 2, contact.offset + 4)

@@ -489,8 +489,8 @@ impl RobotWorld {
                 } else {
                     (0, 0)
                 };
-                // Rapier groups jointed bodies for their extra iterations (the maximum over the group); the
-                // trunk carries the robot's, and robots sharing a value are solved as one group.
+                // Rapier gives a group of jointed bodies the maximum of their extra iterations;
+                // the trunk carries the robot's, and robots sharing a value are solved together.
                 let trunk = &mut self.bodies[self.robots[slot].bodies[0]];
                 trunk.set_additional_solver_iterations(substeps);
                 trunk.set_additional_pgs_iterations(pgs);
