@@ -29,10 +29,44 @@ from unigait.server_process import LocalServer
 REPORT_STEPS = (0, 5, 10, 25, 50, 100)
 
 
+class TermsByPose:
+    """Mean weighted reward per env-step of each term, split by pose: upright (pitch above the
+    threshold) and head down (head on the ground, below it). Says whether the stance the policy
+    has not found pays more per step than the head rest it holds."""
+
+    def __init__(self, names: tuple[str, ...]) -> None:
+        self.names = names
+        self.sums = {pose: torch.zeros(len(names), dtype=torch.float64) for pose in POSES}
+        self.counts = dict.fromkeys(POSES, 0)
+
+    def add(self, pose: str, terms: torch.Tensor, mask: torch.Tensor) -> None:
+        self.sums[pose] += terms[mask].double().sum(0)
+        self.counts[pose] += int(mask.sum())
+
+    def table(self) -> str:
+        means = {p: self.sums[p] / max(self.counts[p], 1) for p in POSES}
+        lines = [f"{'term':<28}" + "".join(f"{p:>14}" for p in POSES)]
+        for i, name in enumerate(self.names):
+            if any(abs(float(means[p][i])) > 0 for p in POSES):
+                lines.append(f"{name:<28}" + "".join(f"{float(means[p][i]):14.5f}" for p in POSES))
+        lines.append(
+            f"{'sum (env-steps)':<28}"
+            + "".join(f"{float(means[p].sum()):9.5f} ({self.counts[p]})" for p in POSES)
+        )
+        return "\n".join(lines)
+
+
+POSES = ("upright", "head down")
+
+
 def run(
-    address: str, policy: EstimatorActorPolicy | None, obs_dim: int, args: argparse.Namespace
-) -> str:
-    """One batch of pitched starts, driven by ``policy`` (None: zero action); a line of figures."""
+    address: str,
+    policy: EstimatorActorPolicy | None,
+    obs_dim: int,
+    args: argparse.Namespace,
+) -> tuple[str, TermsByPose | None]:
+    """One batch of pitched starts, driven by ``policy`` (None: zero action): a line of figures
+    and, with ``--terms``, the surviving envs' reward terms by pose."""
     n = args.envs
     overrides = (
         "[modes]\nbiped_probability = 1.0\nresampling_time_s = 60.0\n"
@@ -40,10 +74,17 @@ def run(
         f"[init]\npitch = [{args.pitch[0]}, {args.pitch[1]}]\n"
     )
     session = open_session(
-        address, SessionConfig(num_envs=n, seed=args.seed, task_overrides_toml=overrides)
+        address,
+        SessionConfig(
+            num_envs=n,
+            seed=args.seed,
+            task_overrides_toml=overrides,
+            reward_terms=args.terms,
+        ),
     )
     env = TorchVecEnv(session, "cpu")
     pitch_index, upright_pitch = env.spec.pitch_index, env.spec.upright_pitch
+    terms = TermsByPose(env.spec.reward_terms) if args.terms else None
     history = ObservationHistory(n, 3, obs_dim, torch.device("cpu"))
     history.reset(env.last.obs)
     alive = torch.ones(n, dtype=torch.bool)
@@ -61,6 +102,12 @@ def run(
         with torch.no_grad():
             actions = torch.zeros(n, 12) if policy is None else policy(history.flat.view(n, 3, -1))
         out = env.step(actions)
+        counted = alive & ~out.dones
+        if terms is not None and out.reward_terms is not None and out.head_contact is not None:
+            new_pitch = out.obs[:, pitch_index]
+            terms.add("upright", out.reward_terms, counted & (new_pitch > upright_pitch))
+            head_rest = counted & out.head_contact & (new_pitch <= upright_pitch)
+            terms.add("head down", out.reward_terms, head_rest)
         alive &= ~out.dones
         history.push(out.obs, out.dones)
         pitch = out.obs[:, pitch_index]
@@ -70,7 +117,8 @@ def run(
     env.close()
     head = f"{head_hits / head_steps:.0%}" if head_steps else "n/a"
     label = "zero action" if policy is None else "policy"
-    return f"{label:>11}: median pitch at step " + "; ".join(figures) + f"; head down {head}"
+    line = f"{label:>11}: median pitch at step " + "; ".join(figures) + f"; head down {head}"
+    return line, terms
 
 
 def main() -> None:
@@ -79,11 +127,19 @@ def main() -> None:
     parser.add_argument("--pitch", type=float, nargs=2, default=(1.45, 1.55))
     parser.add_argument("--envs", type=int, default=64)
     parser.add_argument("--seed", type=int, default=7)
+    parser.add_argument(
+        "--terms",
+        action="store_true",
+        help="also print each reward term's mean per env-step, upright vs head down (both runs)",
+    )
     args = parser.parse_args()
     policy, dims = load_policy(args.checkpoint)
     with LocalServer() as server:
         for driver in (policy, None):
-            print(run(server.address, driver, dims["obs_dim"], args))
+            line, terms = run(server.address, driver, dims["obs_dim"], args)
+            print(line)
+            if terms is not None:
+                print(terms.table())
 
 
 if __name__ == "__main__":
