@@ -111,6 +111,29 @@ def test_errors_map_to_status_codes(server):
         s.close()
 
 
+def test_upright_threshold_is_reported_and_follows_the_curriculum(server):
+    # A window of one biped env-step and a promote share of 0: every step promotes by 0.1.
+    curriculum = (
+        "[modes]\nbiped_probability = 1.0\n"
+        "[rewards.upright_curriculum]\nenabled = true\nstart = 0.9\nstep = 0.1\n"
+        "promote_share = 0.0\nwindow_steps = 1\n"
+    )
+    zeros = np.zeros((2, 12), np.float32)
+    with open_session(server, SessionConfig(num_envs=2, task_overrides_toml=curriculum)) as s:
+        assert s.initial.upright_pitch == pytest.approx(0.9)
+        got = [s.step(zeros).upright_pitch for _ in range(7)]
+    assert got == pytest.approx([1.0, 1.1, 1.2, 1.3, 1.4, 1.4, 1.4])
+    with open_session(server, SessionConfig(num_envs=2)) as s:
+        assert s.initial.upright_pitch == pytest.approx(1.4)
+        assert s.step(zeros).upright_pitch == pytest.approx(1.4)
+    # A start above the paper's threshold is refused as the client's error.
+    bad = "[rewards.upright_curriculum]\nenabled = true\nstart = 1.5\n"
+    with Client(server) as client, pytest.raises(UnigaitError) as err:
+        client.create_session(SessionConfig(num_envs=2, task_overrides_toml=bad))
+    assert err.value.code_name == "INVALID_ARGUMENT"
+    assert "upright_curriculum.start" in err.value.details
+
+
 def test_a_paused_client_steps_on_after_the_stream_idle_timeout(start_server):
     # A learner paused (a debugger, SIGSTOP, a laptop lid) longer than the stream idle timeout
     # finds its stream ended by the server; the next step opens a new one on the same session.

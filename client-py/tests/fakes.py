@@ -162,9 +162,12 @@ _DTYPES = {"terminated": "u1", "truncated": "u1", "mode": "u1", "final_env_ids":
            "final_episode_length": "<u4", "terrain_level": "<u4"}  # fmt: skip
 
 
+FAKE_UPRIGHT_PITCH = 1.25  # the upright threshold every fake step reports (rad)
+
+
 def to_proto(fields: dict[str, np.ndarray], step_count: int = 0) -> object:
     """A ``unigait.v1.StepResult`` from arrays."""
-    msg = pb.StepResult(step_count=step_count)
+    msg = pb.StepResult(step_count=step_count, upright_pitch=FAKE_UPRIGHT_PITCH)
     for name, value in fields.items():
         getattr(msg, name).CopyFrom(encode(value, _DTYPES.get(name, "<f4")))
     return msg

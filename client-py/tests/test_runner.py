@@ -6,7 +6,7 @@ import math
 
 import pytest
 import torch
-from fakes import SMALL, FakeSession
+from fakes import FAKE_UPRIGHT_PITCH, SMALL, FakeSession
 from rsl_rl.runners import OnPolicyRunner as RslOnPolicyRunner
 
 from unigait.cli import main, training_command
@@ -29,6 +29,7 @@ def test_runner_trains_logs_checkpoints_and_resumes(tmp_path, capsys):
     assert 0.5 < shares <= 1.0 + 1e-6
     assert last["episodes"] > 0 and not math.isnan(last["mean_episode_reward"])
     assert "step_reward/quad_tracking_lin_vel" in last
+    assert last["curriculum/upright_pitch"] == FAKE_UPRIGHT_PITCH  # as the session reports it
     assert any(
         not torch.equal(a, b) for a, b in zip(before, runner.estimator.parameters(), strict=True)
     )

@@ -147,5 +147,6 @@ pub fn step_result(
         nonfinite: Some(u8_tensor(&out.nonfinite, &[n])),
         step_count,
         nonfinite_resets,
+        upright_pitch: Some(out.upright_pitch),
     }
 }

@@ -213,3 +213,62 @@ fn termination_and_truncation_are_told_apart() {
 fn embedded_config_equals_code_defaults() {
     assert_eq!(TaskConfig::embedded_default(), TaskConfig::default());
 }
+
+/// The upright curriculum moves I_up's threshold up one step per judged window while the robots
+/// are above it, gates the biped tracking term with the threshold in force, stops once they are
+/// below it, and with the curriculum off the threshold is the config's, fixed.
+#[test]
+fn upright_curriculum_raises_the_threshold_while_robots_are_above_it() {
+    use rapier3d::math::{Pose, Rotation, Vec3};
+    let n = 8;
+    let pitch = 0.83;
+    let curriculum = "
+[modes]
+biped_probability = 1.0
+[rewards.upright_curriculum]
+enabled = true
+start = 0.5
+step = 0.1
+promote_share = 0.5
+window_steps = 16
+";
+    let model = RobotModel::go2();
+    let q: [f32; NUM_JOINTS] = std::array::from_fn(|j| model.config.default_joint_pos[j]);
+    let zeros = vec![0.0; n * NUM_JOINTS];
+    let lin = RewardTerm::BipedTrackingLinVel as usize;
+    let mut env = batch(calm_config(curriculum), n, 0, 1);
+    assert_eq!(env.output().upright_pitch, 0.5);
+    let mut thresholds = Vec::new();
+    for _ in 0..12 {
+        let before = env.output().upright_pitch;
+        // Each robot held 2 m up at the same nose-down pitch, at rest: one policy step of free
+        // fall with the joints at their targets leaves the pitch where it was.
+        for i in 0..n {
+            let p = env.robot_state(i).base_pos;
+            let base = Pose::from_parts(Vec3::new(p.x, p.y, 2.0), Rotation::from_rotation_y(pitch));
+            env.teleport_env(i, base, &q);
+        }
+        let out = env.step(&zeros).expect("step").clone();
+        for i in 0..n {
+            assert_eq!(out.mode[i], 1, "biped mode throughout");
+            let gated = out.reward_terms[i * RewardTerm::COUNT + lin];
+            assert_eq!(
+                gated > 0.0,
+                pitch > before,
+                "I_up at threshold {before}: {gated}"
+            );
+        }
+        thresholds.push(out.upright_pitch);
+    }
+    // A window is 16 biped env-steps = 2 steps of 8 envs, all above until the threshold passes
+    // 0.83: 0.5 -> 0.6 -> 0.7 -> 0.8 -> 0.9, then no more.
+    let expected = [0.5, 0.6, 0.6, 0.7, 0.7, 0.8, 0.8, 0.9, 0.9, 0.9, 0.9, 0.9];
+    for (got, want) in thresholds.iter().zip(expected) {
+        assert!((got - want).abs() < 1e-5, "{thresholds:?}");
+    }
+
+    let mut fixed = batch(calm_config("[modes]\nbiped_probability = 1.0\n"), n, 0, 1);
+    for _ in 0..4 {
+        assert_eq!(fixed.step(&zeros).expect("step").upright_pitch, 1.4);
+    }
+}

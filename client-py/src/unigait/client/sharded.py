@@ -303,6 +303,7 @@ class ShardedSession(ClosesOnExit):
             step_count=initial.step_count,
             nonfinite_resets=0,
             head_contact=np.zeros(n, dtype=bool),
+            upright_pitch=initial.upright_pitch,
         )
 
     def close(self) -> None:

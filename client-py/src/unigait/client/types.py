@@ -103,6 +103,9 @@ class StepResult:
         nonfinite_resets: Envs reset after a physics blow-up in this step.
         head_contact: bool [N], the head touched the terrain this step (reported only: it
             neither terminates nor costs reward).
+        upright_pitch: Pitch (rad) above which the upright indicator fires from the next step
+            on: the task's ``rewards.upright_pitch`` or where its upright curriculum has got
+            (the mean over shards, each of which runs its own); None from older servers.
     """
 
     obs: np.ndarray
@@ -122,6 +125,7 @@ class StepResult:
     step_count: int = 0
     nonfinite_resets: int = 0
     head_contact: np.ndarray | None = None
+    upright_pitch: float | None = None
 
     @property
     def num_envs(self) -> int:
@@ -171,6 +175,7 @@ class StepResult:
             step_count=int(msg.step_count),
             nonfinite_resets=int(msg.nonfinite_resets),
             head_contact=flag(msg.head_contact),
+            upright_pitch=float(msg.upright_pitch) if msg.HasField("upright_pitch") else None,
         )
 
     @classmethod
@@ -210,6 +215,9 @@ class StepResult:
             head_contact=None
             if any(p.head_contact is None for p in parts)
             else np.concatenate([p.head_contact for p in parts]),
+            upright_pitch=None
+            if any(p.upright_pitch is None for p in parts)
+            else float(np.mean([p.upright_pitch for p in parts])),
         )
 
 

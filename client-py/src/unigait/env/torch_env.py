@@ -37,6 +37,8 @@ class TorchStep:
         terrain_level: int64 [N] terrain level.
         head_contact: bool [N] the head touched the terrain in this step (None when the server
             does not report it).
+        upright_pitch: the upright indicator's threshold from the next step on (rad; None when
+            the server does not report it).
     """
 
     obs: torch.Tensor
@@ -54,6 +56,7 @@ class TorchStep:
     mode: torch.Tensor
     terrain_level: torch.Tensor
     head_contact: torch.Tensor | None = None
+    upright_pitch: float | None = None
 
     @property
     def dones(self) -> torch.Tensor:
@@ -89,6 +92,7 @@ class TorchStep:
             mode=_t(r.mode, device, torch.int64),
             terrain_level=_t(r.terrain_level, device, torch.int64),
             head_contact=None if r.head_contact is None else _t(r.head_contact, device),
+            upright_pitch=r.upright_pitch,
         )
 
 

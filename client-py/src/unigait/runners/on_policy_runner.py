@@ -199,6 +199,9 @@ class OnPolicyRunner:
             "biped_share": biped / steps,
             **self.biped_pose.summary(),
         }
+        if step.upright_pitch is not None:
+            # I_up's threshold at the end of the rollout (the task's, or its curriculum's).
+            out["curriculum/upright_pitch"] = step.upright_pitch
         ep = {k: torch.cat(v) for k, v in ended.items()}
         n_ep = int(ep["reward"].numel())
         out["episodes"] = float(n_ep)

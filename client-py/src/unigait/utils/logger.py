@@ -139,7 +139,8 @@ class TrainLogger:
             f" | ep. len {s['mean_episode_length']:6.1f} | quad track "
             f"{s.get('step_reward/quad_tracking_lin_vel', math.nan):.4f} | biped pitch "
             f"{s.get('biped_pose/pitch', math.nan):.2f} head "
-            f"{s.get('biped_pose/head_contact_share', math.nan):.2f}"
+            f"{s.get('biped_pose/head_contact_share', math.nan):.2f} I_up > "
+            f"{s.get('curriculum/upright_pitch', math.nan):.2f}"
             f" | sim/inf/upd {s['time_share/simulation']:.0%}/"
             f"{s['time_share/inference']:.0%}/{s['time_share/update']:.0%}"
         )
@@ -167,6 +168,10 @@ class TrainLogger:
                 f"{s.get('biped_pose/pitch', math.nan):.2f} rad / "
                 f"{s.get('biped_pose/upright_share', math.nan):.0%} / "
                 f"{s.get('biped_pose/head_contact_share', math.nan):.0%}",
+            ),
+            (
+                "upright indicator threshold",
+                f"{s.get('curriculum/upright_pitch', math.nan):.2f} rad",
             ),
             ("value / surrogate loss", f"{s['value_loss']:.4f} / {s['surrogate_loss']:.4f}"),
             ("estimator MSE", f"{s['estimator_loss']:.5f}"),

@@ -21,6 +21,7 @@ use crate::terrain::Terrain;
 use super::EnvId;
 use super::env_state::EnvState;
 use super::output::OutputChunk;
+use super::upright_curriculum::UprightCounts;
 
 /// Time spent per stage (seconds, summed over groups).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -43,6 +44,8 @@ pub struct EnvGroup {
     pub times: StageTimes,
     /// Envs reset because their physics went non-finite, since creation.
     pub nonfinite_resets: u64,
+    /// Biped-mode env-steps since the batch last took them (for the upright curriculum).
+    pub upright_counts: UprightCounts,
 }
 
 /// Everything a group needs to read while stepping.
@@ -57,6 +60,8 @@ pub struct Shared<'a> {
     pub num_envs: usize,
     /// Skip the task (observations, rewards, episodes): bare physics for benchmarks.
     pub physics_only: bool,
+    /// Pitch above which I_up fires in this step (rad): the config's, or the curriculum's.
+    pub upright_pitch: f32,
 }
 
 /// Stream id of env `index`'s RNG: distinct per env, independent of grouping.
@@ -104,6 +109,7 @@ impl EnvGroup {
             torques: vec![0.0; count * NUM_JOINTS],
             times: StageTimes::default(),
             nonfinite_resets: 0,
+            upright_counts: UprightCounts::default(),
         }
     }
 
@@ -374,7 +380,11 @@ impl EnvGroup {
                 &self.torques[slot * NUM_JOINTS..],
             );
             let raw = task::raw_terms(&inputs, &ctx.reward, cfg);
-            let ind = task::indicators(self.envs[slot].mode == TaskMode::Biped, inputs.pitch, cfg);
+            let biped = self.envs[slot].mode == TaskMode::Biped;
+            let ind = task::indicators(biped, inputs.pitch, sh.upright_pitch, cfg);
+            if biped {
+                self.upright_counts.add(inputs.pitch > sh.upright_pitch);
+            }
             out.reward[slot] = task::weigh_terms(&raw, &ind, cfg, terms);
         } else {
             // A physics blow-up: the transition carries no reward and ends without bootstrap.

@@ -5,6 +5,7 @@ mod env_state;
 mod group;
 mod layout;
 mod output;
+mod upright_curriculum;
 mod vec_env;
 
 pub use env_id::EnvId;
@@ -12,4 +13,5 @@ pub use env_state::{EnvState, sample_command};
 pub use group::{StageTimes, write_labels, write_observation};
 pub use layout::{ElementType, SliceLayout, TensorLayout, tensor_layouts};
 pub use output::{OutputChunk, StepOutput};
+pub use upright_curriculum::{UprightCounts, UprightThreshold};
 pub use vec_env::{VecEnv, VecEnvOptions, validate_actions, worker_pool};

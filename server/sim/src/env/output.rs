@@ -39,6 +39,9 @@ pub struct StepOutput {
     pub head_contact: Vec<u8>,
     /// Motor torques of the last physics step: [N, 12].
     pub torques: Vec<f32>,
+    /// Pitch above which the upright indicator fires from the next step on (rad): the task's
+    /// `rewards.upright_pitch`, or where its upright curriculum has got to.
+    pub upright_pitch: f32,
 }
 
 impl StepOutput {
@@ -61,6 +64,7 @@ impl StepOutput {
             nonfinite: vec![0; n],
             head_contact: vec![0; n],
             torques: vec![0.0; n * NUM_JOINTS],
+            upright_pitch: 0.0,
         }
     }
 

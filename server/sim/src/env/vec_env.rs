@@ -12,6 +12,7 @@ use crate::terrain::Terrain;
 
 use super::group::{EnvGroup, Shared, StageTimes};
 use super::output::StepOutput;
+use super::upright_curriculum::{UprightCounts, UprightThreshold};
 
 /// How a batch is built.
 #[derive(Clone, Debug, PartialEq)]
@@ -49,6 +50,7 @@ pub struct VecEnv {
     pool: Arc<rayon::ThreadPool>,
     out: StepOutput,
     options: VecEnvOptions,
+    upright: UprightThreshold,
 }
 
 /// A pool of `threads` env worker threads (0 = one per core).
@@ -126,9 +128,13 @@ impl VecEnv {
         let ctx = Arc::new(TaskContext::new(config, &model));
         let epw = ctx.config.env.envs_per_world;
         let n = options.num_envs;
+        let upright = UprightThreshold::new(&ctx.config.rewards);
+        let mut out = StepOutput::new(n);
+        out.upright_pitch = upright.current();
         let mut env = Self {
             groups: Vec::new(),
-            out: StepOutput::new(n),
+            out,
+            upright,
             model,
             ctx,
             terrain,
@@ -156,6 +162,7 @@ impl VecEnv {
             terrain: &self.terrain,
             num_envs: self.options.num_envs,
             physics_only: self.options.physics_only,
+            upright_pitch: self.upright.current(),
         }
     }
 
@@ -172,6 +179,7 @@ impl VecEnv {
             terrain: &self.terrain,
             num_envs: self.options.num_envs,
             physics_only: self.options.physics_only,
+            upright_pitch: self.upright.current(),
         };
         let chunks = self.out.chunks_mut(epw);
         let groups = &mut self.groups;
@@ -224,6 +232,14 @@ impl VecEnv {
             let rows = &actions[first * NUM_JOINTS..(first + epw).min(n) * NUM_JOINTS];
             g.step(sh, rows, autoreset, chunk);
         });
+        // Summed in group order after the parallel step, so the threshold does not depend on
+        // the thread count.
+        let mut counts = UprightCounts::default();
+        for g in &mut self.groups {
+            counts += std::mem::take(&mut g.upright_counts);
+        }
+        self.upright.observe(counts);
+        self.out.upright_pitch = self.upright.current();
         Ok(&self.out)
     }
 
@@ -264,6 +280,7 @@ impl VecEnv {
             terrain: &self.terrain,
             num_envs: n,
             physics_only: self.options.physics_only,
+            upright_pitch: self.upright.current(),
         };
         // Groups and output chunks pair up one to one (both are `epw` envs each).
         let (group, slot) = (env / epw, env % epw);

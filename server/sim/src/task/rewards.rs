@@ -317,8 +317,10 @@ pub fn raw_terms(
     v
 }
 
-/// The indicators for a mode (`biped`) and a pitch, with the config's ablation switches.
-pub fn indicators(biped: bool, pitch: f32, cfg: &TaskConfig) -> Indicators {
+/// The indicators for a mode (`biped`) and a pitch, with the config's ablation switches. I_up
+/// fires above `upright_pitch`: the config's `rewards.upright_pitch`, or where the upright
+/// curriculum has got to.
+pub fn indicators(biped: bool, pitch: f32, upright_pitch: f32, cfg: &TaskConfig) -> Indicators {
     let r = &cfg.rewards;
     let (i1, i2) = if r.task_indicators {
         (f32::from(u8::from(biped)), f32::from(u8::from(!biped)))
@@ -326,7 +328,7 @@ pub fn indicators(biped: bool, pitch: f32, cfg: &TaskConfig) -> Indicators {
         (1.0, 1.0)
     };
     let up = if r.upright_indicator {
-        f32::from(u8::from(pitch > r.upright_pitch))
+        f32::from(u8::from(pitch > upright_pitch))
     } else {
         1.0
     };
