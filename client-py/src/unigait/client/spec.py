@@ -176,7 +176,11 @@ class Spec:
 
     @property
     def upright_pitch(self) -> float:
-        """Pitch above which the robot counts as upright in biped mode (rad; the task's I_up)."""
+        """Pitch above which the robot counts as upright in biped mode (rad; the task's I_up).
+
+        This is ``rewards.upright_pitch`` (the paper's 1.4), where an upright curriculum ends;
+        where the curriculum stands now is each step result's ``upright_pitch``.
+        """
         try:
             return float(tomllib.loads(self.task_config_toml)["rewards"]["upright_pitch"])
         except (tomllib.TOMLDecodeError, KeyError) as err:
