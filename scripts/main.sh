@@ -26,6 +26,13 @@ echo "== the shipped policy (assets/policies/quad_flat): velocity tracking on fo
   --scenario transition_quad_to_biped --num-envs 16 --seed 1000 \
   --record "$OUT/shipped_quad_flat_transition.rrd"
 
+echo "== the shipped unified policy (assets/policies/unified_flat): both mode switches, recorded"
+for scenario in transition_quad_to_biped transition_biped_to_quad; do
+  "$VENV/bin/python" -m unigait evaluate --policy assets/policies/unified_flat/policy.onnx \
+    --scenario "$scenario" --num-envs 16 --seed 1000 \
+    --report "$OUT/shipped_unified_flat_$scenario.json" --record "$OUT/shipped_unified_flat_$scenario.rrd"
+done
+
 echo "== training: $ITERATIONS iterations x $ENVS envs x 24 steps (PPO + concurrent estimator)"
 "$VENV/bin/python" -m unigait train --iterations "$ITERATIONS" --num-envs "$ENVS" --log-dir "$OUT" --quiet
 echo "== exporting the fused estimator + actor to ONNX"
@@ -37,6 +44,7 @@ echo "== evaluating on the server and recording a rollout"
 echo
 echo "Shipped policy: $OUT/shipped_quad_flat_eval.json, $OUT/shipped_quad_flat.rrd,"
 echo "  $OUT/shipped_quad_flat_transition.rrd (pictures: scripts/render_recording.py, see README)"
+echo "Shipped unified policy: $OUT/shipped_unified_flat_transition_*.json and .rrd"
 echo "Training curves: $OUT/training.png (scalars in $OUT/*.csv); evaluation: $OUT/eval.json"
 echo "Open the rollout with the rerun viewer (rerun-sdk 0.36, installed in the venv):"
 echo "  $VENV/bin/rerun $OUT/rollout.rrd"
