@@ -29,6 +29,9 @@ from unigait.server_process import LocalServer
 REPORT_STEPS = (0, 5, 10, 25, 50, 100)
 
 
+POSES = ("upright", "head down")
+
+
 class TermsByPose:
     """Mean weighted reward per env-step of each term, split by pose: upright (pitch above the
     threshold) and head down (head on the ground, below it). Says whether the stance the policy
@@ -54,9 +57,6 @@ class TermsByPose:
             + "".join(f"{float(means[p].sum()):9.5f} ({self.counts[p]})" for p in POSES)
         )
         return "\n".join(lines)
-
-
-POSES = ("upright", "head down")
 
 
 def run(
@@ -102,15 +102,13 @@ def run(
         with torch.no_grad():
             actions = torch.zeros(n, 12) if policy is None else policy(history.flat.view(n, 3, -1))
         out = env.step(actions)
-        counted = alive & ~out.dones
-        if terms is not None and out.reward_terms is not None and out.head_contact is not None:
-            new_pitch = out.obs[:, pitch_index]
-            terms.add("upright", out.reward_terms, counted & (new_pitch > upright_pitch))
-            head_rest = counted & out.head_contact & (new_pitch <= upright_pitch)
-            terms.add("head down", out.reward_terms, head_rest)
         alive &= ~out.dones
         history.push(out.obs, out.dones)
         pitch = out.obs[:, pitch_index]
+        if terms is not None and out.reward_terms is not None and out.head_contact is not None:
+            terms.add("upright", out.reward_terms, alive & (pitch > upright_pitch))
+            head_rest = alive & out.head_contact & (pitch <= upright_pitch)
+            terms.add("head down", out.reward_terms, head_rest)
         if out.head_contact is not None:
             head_steps += int(alive.sum())
             head_hits += int((alive & out.head_contact).sum())

@@ -142,7 +142,13 @@ impl VecEnv {
             options,
         };
         let firsts: Vec<usize> = (0..n).step_by(epw).collect();
-        let sh = env.shared();
+        let sh = Self::shared(
+            &env.model,
+            &env.ctx,
+            &env.terrain,
+            &env.options,
+            &env.upright,
+        );
         let seed = env.options.seed;
         let groups: Vec<EnvGroup> = env.pool.install(|| {
             firsts
@@ -155,14 +161,22 @@ impl VecEnv {
         Ok(env)
     }
 
-    fn shared(&self) -> Shared<'_> {
+    /// What the groups read while stepping. It borrows the fields it reads, not `self`, so that
+    /// the groups and the output can be borrowed mutably beside it.
+    fn shared<'a>(
+        model: &'a RobotModel,
+        ctx: &'a TaskContext,
+        terrain: &'a Terrain,
+        options: &VecEnvOptions,
+        upright: &UprightThreshold,
+    ) -> Shared<'a> {
         Shared {
-            model: &self.model,
-            ctx: &self.ctx,
-            terrain: &self.terrain,
-            num_envs: self.options.num_envs,
-            physics_only: self.options.physics_only,
-            upright_pitch: self.upright.current(),
+            model,
+            ctx,
+            terrain,
+            num_envs: options.num_envs,
+            physics_only: options.physics_only,
+            upright_pitch: upright.current(),
         }
     }
 
@@ -173,14 +187,13 @@ impl VecEnv {
         work: impl Fn(&Shared, &mut EnvGroup, &mut super::OutputChunk, usize) + Sync,
     ) {
         let epw = self.ctx.config.env.envs_per_world;
-        let sh = Shared {
-            model: &self.model,
-            ctx: &self.ctx,
-            terrain: &self.terrain,
-            num_envs: self.options.num_envs,
-            physics_only: self.options.physics_only,
-            upright_pitch: self.upright.current(),
-        };
+        let sh = Self::shared(
+            &self.model,
+            &self.ctx,
+            &self.terrain,
+            &self.options,
+            &self.upright,
+        );
         let chunks = self.out.chunks_mut(epw);
         let groups = &mut self.groups;
         self.pool.install(|| {
@@ -274,14 +287,13 @@ impl VecEnv {
         }
         check_command(command, env)?;
         let epw = self.ctx.config.env.envs_per_world;
-        let sh = Shared {
-            model: &self.model,
-            ctx: &self.ctx,
-            terrain: &self.terrain,
-            num_envs: n,
-            physics_only: self.options.physics_only,
-            upright_pitch: self.upright.current(),
-        };
+        let sh = Self::shared(
+            &self.model,
+            &self.ctx,
+            &self.terrain,
+            &self.options,
+            &self.upright,
+        );
         // Groups and output chunks pair up one to one (both are `epw` envs each).
         let (group, slot) = (env / epw, env % epw);
         if let (Some(g), Some(chunk)) = (

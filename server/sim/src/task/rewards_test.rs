@@ -12,6 +12,11 @@ fn close(a: f32, b: f32) {
     assert!((a - b).abs() <= 1e-5 * (1.0 + b.abs()), "{a} != {b}");
 }
 
+/// The indicators at the config's own upright threshold (no curriculum).
+fn fixed_indicators(biped: bool, pitch: f32, cfg: &TaskConfig) -> Indicators {
+    indicators(biped, pitch, cfg.rewards.upright_pitch, cfg)
+}
+
 fn zeros() -> [f32; NUM_JOINTS] {
     [0.0; NUM_JOINTS]
 }
@@ -181,7 +186,7 @@ fn masks_indicators_and_ablations() {
     let raw = [1.0; RewardTerm::COUNT];
     let mut terms = [0.0; RewardTerm::COUNT];
     // Quad mode: every biped term is exactly 0, every quad term is weight * dt.
-    let ind = indicators(false, 0.0, cfg.rewards.upright_pitch, &cfg);
+    let ind = fixed_indicators(false, 0.0, &cfg);
     weigh_terms(&raw, &ind, &cfg, &mut terms);
     for t in RewardTerm::ALL {
         let expected = match t.group() {
@@ -191,7 +196,7 @@ fn masks_indicators_and_ablations() {
         close(terms[t as usize], expected);
     }
     // Biped mode below the upright pitch: quad terms and gated biped terms are 0.
-    let ind = indicators(true, 1.3, cfg.rewards.upright_pitch, &cfg);
+    let ind = fixed_indicators(true, 1.3, &cfg);
     weigh_terms(&raw, &ind, &cfg, &mut terms);
     for t in RewardTerm::ALL {
         let expected = match t.group() {
@@ -201,7 +206,7 @@ fn masks_indicators_and_ablations() {
         close(terms[t as usize], expected);
     }
     // Above 1.4 rad the gated terms switch on.
-    let ind = indicators(true, 1.45, cfg.rewards.upright_pitch, &cfg);
+    let ind = fixed_indicators(true, 1.45, &cfg);
     weigh_terms(&raw, &ind, &cfg, &mut terms);
     close(terms[RewardTerm::BipedTrackingLinVel as usize], 2.0 * 0.02);
     close(terms[RewardTerm::QuadTrackingLinVel as usize], 0.0);
@@ -211,15 +216,10 @@ fn masks_indicators_and_ablations() {
     no_up.rewards.upright_indicator = false;
     let mut with = [0.0; RewardTerm::COUNT];
     let mut without = [0.0; RewardTerm::COUNT];
+    weigh_terms(&raw, &fixed_indicators(true, 0.5, &cfg), &cfg, &mut with);
     weigh_terms(
         &raw,
-        &indicators(true, 0.5, cfg.rewards.upright_pitch, &cfg),
-        &cfg,
-        &mut with,
-    );
-    weigh_terms(
-        &raw,
-        &indicators(true, 0.5, no_up.rewards.upright_pitch, &no_up),
+        &fixed_indicators(true, 0.5, &no_up),
         &no_up,
         &mut without,
     );
@@ -236,15 +236,10 @@ fn masks_indicators_and_ablations() {
     // the pitch), the quad and common terms stay.
     let mut no_task = cfg.clone();
     no_task.rewards.task_indicators = false;
+    weigh_terms(&raw, &fixed_indicators(false, 1.5, &cfg), &cfg, &mut with);
     weigh_terms(
         &raw,
-        &indicators(false, 1.5, cfg.rewards.upright_pitch, &cfg),
-        &cfg,
-        &mut with,
-    );
-    weigh_terms(
-        &raw,
-        &indicators(false, 1.5, no_task.rewards.upright_pitch, &no_task),
+        &fixed_indicators(false, 1.5, &no_task),
         &no_task,
         &mut without,
     );
@@ -262,18 +257,13 @@ fn total_is_clipped_before_termination() {
     raw[RewardTerm::Collision as usize] = 2.0; // -1 * 0.02 * 2 = -0.04
     raw[RewardTerm::Termination as usize] = 1.0; // -0.02 * 0.02 = -0.0004
     let mut terms = [0.0; RewardTerm::COUNT];
-    let total = weigh_terms(
-        &raw,
-        &indicators(false, 0.0, cfg.rewards.upright_pitch, &cfg),
-        &cfg,
-        &mut terms,
-    );
+    let total = weigh_terms(&raw, &fixed_indicators(false, 0.0, &cfg), &cfg, &mut terms);
     close(total, -0.0004);
     let mut signed = cfg.clone();
     signed.rewards.only_positive = false;
     let total = weigh_terms(
         &raw,
-        &indicators(false, 0.0, signed.rewards.upright_pitch, &signed),
+        &fixed_indicators(false, 0.0, &signed),
         &signed,
         &mut terms,
     );
