@@ -142,15 +142,9 @@ impl VecEnv {
             options,
         };
         let firsts: Vec<usize> = (0..n).step_by(epw).collect();
-        let sh = Self::shared(
-            &env.model,
-            &env.ctx,
-            &env.terrain,
-            &env.options,
-            &env.upright,
-        );
         let seed = env.options.seed;
-        let groups: Vec<EnvGroup> = env.pool.install(|| {
+        let (sh, _, _, pool) = env.parts();
+        let groups: Vec<EnvGroup> = pool.install(|| {
             firsts
                 .par_iter()
                 .map(|&first| EnvGroup::new(&sh, first, epw.min(n - first), seed))
@@ -161,23 +155,26 @@ impl VecEnv {
         Ok(env)
     }
 
-    /// What the groups read while stepping. It borrows the fields it reads, not `self`, so that
-    /// the groups and the output can be borrowed mutably beside it.
-    fn shared<'a>(
-        model: &'a RobotModel,
-        ctx: &'a TaskContext,
-        terrain: &'a Terrain,
-        options: &VecEnvOptions,
-        upright: &UprightThreshold,
-    ) -> Shared<'a> {
-        Shared {
-            model,
-            ctx,
-            terrain,
-            num_envs: options.num_envs,
-            physics_only: options.physics_only,
-            upright_pitch: upright.current(),
-        }
+    /// What the groups read while stepping, beside the groups, the output and the pool: one
+    /// borrow of `self` split by field, so the groups and the output can be written while the
+    /// shared view is read.
+    fn parts(
+        &mut self,
+    ) -> (
+        Shared<'_>,
+        &mut Vec<EnvGroup>,
+        &mut StepOutput,
+        &rayon::ThreadPool,
+    ) {
+        let sh = Shared {
+            model: &self.model,
+            ctx: &self.ctx,
+            terrain: &self.terrain,
+            num_envs: self.options.num_envs,
+            physics_only: self.options.physics_only,
+            upright_pitch: self.upright.current(),
+        };
+        (sh, &mut self.groups, &mut self.out, &self.pool)
     }
 
     /// Run `work(shared, group, its output rows, its first env index)` on every group in
@@ -187,16 +184,9 @@ impl VecEnv {
         work: impl Fn(&Shared, &mut EnvGroup, &mut super::OutputChunk, usize) + Sync,
     ) {
         let epw = self.ctx.config.env.envs_per_world;
-        let sh = Self::shared(
-            &self.model,
-            &self.ctx,
-            &self.terrain,
-            &self.options,
-            &self.upright,
-        );
-        let chunks = self.out.chunks_mut(epw);
-        let groups = &mut self.groups;
-        self.pool.install(|| {
+        let (sh, groups, out, pool) = self.parts();
+        let chunks = out.chunks_mut(epw);
+        pool.install(|| {
             groups
                 .par_iter_mut()
                 .zip(chunks)
@@ -287,19 +277,11 @@ impl VecEnv {
         }
         check_command(command, env)?;
         let epw = self.ctx.config.env.envs_per_world;
-        let sh = Self::shared(
-            &self.model,
-            &self.ctx,
-            &self.terrain,
-            &self.options,
-            &self.upright,
-        );
+        let (sh, groups, out, _) = self.parts();
         // Groups and output chunks pair up one to one (both are `epw` envs each).
         let (group, slot) = (env / epw, env % epw);
-        if let (Some(g), Some(chunk)) = (
-            self.groups.get_mut(group),
-            self.out.chunks_mut(epw).get_mut(group),
-        ) {
+        if let (Some(g), Some(chunk)) = (groups.get_mut(group), out.chunks_mut(epw).get_mut(group))
+        {
             g.set_mode(&sh, slot, mode, command, chunk);
         }
         Ok(())
