@@ -27,6 +27,7 @@ mod report;
 mod runner;
 pub mod scenario;
 pub mod terrain;
+mod transition;
 
 pub use error::EvalError;
 pub use evaluate::{EvalOptions, evaluate, evaluate_scenario};

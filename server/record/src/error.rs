@@ -34,3 +34,13 @@ pub enum RecordError {
         num_envs: usize,
     },
 }
+
+/// A stream that could not be opened, as a [`RecordError`].
+pub(crate) fn open_err(e: impl std::fmt::Display) -> RecordError {
+    RecordError::Open(e.to_string())
+}
+
+/// A log or flush that failed, as a [`RecordError`].
+pub(crate) fn log_err(e: impl std::fmt::Display) -> RecordError {
+    RecordError::Finish(e.to_string())
+}

@@ -32,13 +32,16 @@
 #![warn(missing_docs)]
 
 pub mod blueprint;
+pub mod entity;
 mod error;
+mod outcome;
 mod recorder;
+mod scene;
 mod serve;
 mod terrain_mesh;
 
 pub use error::RecordError;
-pub use recorder::{APPLICATION_ID, FOOT_NAMES, RecordOptions, Recorder, entity};
+pub use recorder::{APPLICATION_ID, FOOT_NAMES, RecordOptions, Recorder};
 pub use rerun::MemoryLimit;
 pub use serve::{
     DEFAULT_MEMORY_LIMIT_BYTES, DEFAULT_SERVE_PORT, ServeOptions, Served, proxy_url, send_rrd,

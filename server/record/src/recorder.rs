@@ -4,86 +4,24 @@
 use std::path::Path;
 
 use rerun::{
-    Arrows3D, Boxes3D, Capsules3D, Color, Ellipsoids3D, FillMode, Mesh3D, Points3D, Quaternion,
-    RecordingStream, RecordingStreamBuilder, Scalars, SeriesLines, StateChange, StateConfiguration,
-    TextLog, TextLogLevel, Transform3D, ViewCoordinates,
+    Arrows3D, Color, Mesh3D, Points3D, RecordingStream, RecordingStreamBuilder, Scalars,
+    SeriesLines, StateChange, StateConfiguration, TextLog, TextLogLevel, Transform3D,
+    ViewCoordinates,
 };
 use unigait_sim::env::VecEnv;
-use unigait_sim::robot::{ColliderRole, NUM_FEET, RobotModel, Shape};
+use unigait_sim::robot::{ColliderRole, NUM_FEET};
 use unigait_sim::task::{RewardTerm, TermGroup, euler_pitch, heading_direction, to_heading_frame};
 
 use crate::blueprint::{Layout, LayoutEnv, LayoutInput};
-use crate::error::RecordError;
+use crate::entity;
+use crate::error::{RecordError, log_err, open_err};
+use crate::outcome::{Tracked, log_outcome_events, mode_name};
+use crate::scene::{ScenePaths, log_robot_shapes, quat};
 use crate::serve::{ServeOptions, Served, proxy_url, serve_stream};
 use crate::terrain_mesh::terrain_mesh;
 
 /// The rerun application id of unigait recordings.
 pub const APPLICATION_ID: &str = "unigait";
-
-/// Entity paths of a recording.
-pub mod entity {
-    /// Root of the 3D scene (Z up).
-    pub const WORLD: &str = "world";
-    /// Parent of the followed env's bodies: `world/robot/<body>`.
-    pub const ROBOT: &str = "world/robot";
-    /// The terrain mesh around the followed env.
-    pub const TERRAIN: &str = "world/terrain";
-    /// Feet of the followed env, coloured by contact.
-    pub const FEET: &str = "world/feet";
-    /// Commanded velocity (world frame) as an arrow from the base.
-    pub const COMMAND: &str = "world/command";
-    /// Measured base velocity as an arrow from the base.
-    pub const VELOCITY: &str = "world/velocity";
-    /// Parent of the other recorded envs: `world/envs/<index>/{robot/<body>,feet,terrain}`.
-    pub const OTHER_ENVS: &str = "world/envs";
-    /// Total reward.
-    pub const REWARD_TOTAL: &str = "reward/total";
-    /// Parent of the active mode's task terms, `reward/active/<term>`: each logged only while
-    /// its mode is the current one (the same values as `reward/<term>`).
-    pub const REWARD_ACTIVE: &str = "reward/active";
-    /// Task mode (1 biped, 2 quad).
-    pub const MODE: &str = "mode";
-    /// The gait diagram: `gait/<foot>` (stance / swing) and `gait/task_mode` (quad / biped) as
-    /// state lanes, logged at each change.
-    pub const GAIT: &str = "gait";
-    /// Mode lane of the gait diagram (named to sort below the feet, which read top down).
-    pub const GAIT_MODE: &str = "gait/task_mode";
-    /// The followed env's mode changes and episode ends.
-    pub const EVENTS: &str = "events";
-    /// Per recorded env: falls, head hits, time-outs, mode switches and the final outcome,
-    /// `outcome/env<index>`.
-    pub const OUTCOME: &str = "outcome";
-
-    /// Entity of body `name` of the followed env.
-    pub fn body(name: &str) -> String {
-        format!("{ROBOT}/{name}")
-    }
-
-    /// Series of reward term `term`.
-    pub fn reward(term: &str) -> String {
-        format!("reward/{term}")
-    }
-
-    /// Series of task term `term` while its mode is active.
-    pub fn reward_active(term: &str) -> String {
-        format!("{REWARD_ACTIVE}/{term}")
-    }
-
-    /// Gait lane of foot `foot` (`FL`, `FR`, `RL`, `RR`).
-    pub fn gait(foot: &str) -> String {
-        format!("{GAIT}/{foot}")
-    }
-
-    /// Subtree of another recorded env (not the followed one).
-    pub fn other_env(index: usize) -> String {
-        format!("{OTHER_ENVS}/{index}")
-    }
-
-    /// Outcome events of recorded env `index`.
-    pub fn outcome(index: usize) -> String {
-        format!("{OUTCOME}/env{index}")
-    }
-}
 
 /// Foot names in leg order.
 pub const FOOT_NAMES: [&str; NUM_FEET] = ["FL", "FR", "RL", "RR"];
@@ -115,50 +53,6 @@ impl Default for RecordOptions {
     }
 }
 
-/// Entity paths of one recorded env's 3D scene.
-#[derive(Clone, Debug)]
-struct ScenePaths {
-    robot: String,
-    feet: String,
-    terrain: String,
-}
-
-impl ScenePaths {
-    fn followed() -> Self {
-        Self {
-            robot: entity::ROBOT.into(),
-            feet: entity::FEET.into(),
-            terrain: entity::TERRAIN.into(),
-        }
-    }
-
-    fn other(index: usize) -> Self {
-        let root = entity::other_env(index);
-        Self {
-            robot: format!("{root}/robot"),
-            feet: format!("{root}/feet"),
-            terrain: format!("{root}/terrain"),
-        }
-    }
-
-    fn body(&self, name: &str) -> String {
-        format!("{}/{name}", self.robot)
-    }
-}
-
-/// What the recorder remembers of one recorded env between steps.
-#[derive(Clone, Debug)]
-struct Tracked {
-    index: usize,
-    paths: ScenePaths,
-    mode: u8,
-    head_contact: bool,
-    falls: u32,
-    head_hits: u32,
-    time_outs: u32,
-    mode_switches: u32,
-}
-
 /// Records envs of a batch, step by step.
 pub struct Recorder {
     rec: RecordingStream,
@@ -182,58 +76,6 @@ impl std::fmt::Debug for Recorder {
             .field("served", &self.served)
             .field("steps", &self.steps)
             .finish_non_exhaustive()
-    }
-}
-
-fn open_err(e: impl std::fmt::Display) -> RecordError {
-    RecordError::Open(e.to_string())
-}
-
-fn log_err(e: impl std::fmt::Display) -> RecordError {
-    RecordError::Finish(e.to_string())
-}
-
-/// A rotation as rerun's quaternion (plain xyzw arrays in between: rapier and rerun use
-/// different glam versions).
-fn quat(q: impl Into<[f32; 4]>) -> Quaternion {
-    Quaternion::from_xyzw(q.into())
-}
-
-/// Colour of a collider by link group: trunk and head blue, hips grey, thighs and calves by
-/// side (left warm, right cool, so diagonal leg pairs of a trot read), feet near black.
-fn link_color(body: &str, role: ColliderRole) -> Color {
-    let left = body.starts_with("FL") || body.starts_with("RL");
-    match role {
-        ColliderRole::Trunk => Color::from_rgb(60, 90, 150),
-        ColliderRole::Head => Color::from_rgb(95, 130, 190),
-        ColliderRole::Foot(_) => Color::from_rgb(35, 35, 35),
-        ColliderRole::Penalised | ColliderRole::Other => {
-            if body.ends_with("_hip") {
-                Color::from_rgb(115, 115, 120)
-            } else if body.ends_with("_thigh") {
-                if left {
-                    Color::from_rgb(225, 135, 50)
-                } else {
-                    Color::from_rgb(40, 155, 165)
-                }
-            } else if body.ends_with("_calf") {
-                if left {
-                    Color::from_rgb(240, 185, 120)
-                } else {
-                    Color::from_rgb(120, 205, 210)
-                }
-            } else {
-                Color::from_rgb(150, 150, 150)
-            }
-        }
-    }
-}
-
-fn mode_name(code: u8) -> &'static str {
-    match code {
-        1 => "biped",
-        2 => "quad",
-        _ => "unknown",
     }
 }
 
@@ -699,107 +541,4 @@ impl Recorder {
         self.rec.disconnect();
         Ok(bytes)
     }
-}
-
-/// Falls, head hits (each new contact), time-outs and mode switches of a recorded env after a
-/// step, as events on its outcome entity.
-fn log_outcome_events(
-    rec: &RecordingStream,
-    t: &mut Tracked,
-    env: &VecEnv,
-    step: u64,
-    t_s: f64,
-) -> Result<(), RecordError> {
-    let out = env.output();
-    let k = t.index;
-    let mut events: Vec<(String, &str)> = Vec::new();
-    let head = out.head_contact[k] != 0;
-    if step > 0 {
-        if head && !t.head_contact {
-            t.head_hits += 1;
-            events.push((
-                format!("env {k}: head hit the ground at {t_s:.2} s"),
-                TextLogLevel::WARN,
-            ));
-        }
-        if out.terminated[k] != 0 {
-            t.falls += 1;
-            events.push((
-                format!("env {k}: fell (base contact) at {t_s:.2} s; reset"),
-                TextLogLevel::WARN,
-            ));
-        } else if out.truncated[k] != 0 {
-            t.time_outs += 1;
-            events.push((
-                format!("env {k}: episode time-out at {t_s:.2} s; reset"),
-                TextLogLevel::INFO,
-            ));
-        }
-        if out.mode[k] != t.mode {
-            t.mode_switches += 1;
-            events.push((
-                format!(
-                    "env {k}: mode {} -> {} at {t_s:.2} s",
-                    mode_name(t.mode),
-                    mode_name(out.mode[k])
-                ),
-                TextLogLevel::INFO,
-            ));
-        }
-    }
-    t.head_contact = head;
-    t.mode = out.mode[k];
-    for (text, level) in events {
-        rec.log(entity::outcome(k), &TextLog::new(text).with_level(level))
-            .map_err(log_err)?;
-    }
-    Ok(())
-}
-
-/// The robot's collision shapes under `paths.robot`, static in their bodies' frames.
-fn log_robot_shapes(
-    rec: &RecordingStream,
-    model: &RobotModel,
-    paths: &ScenePaths,
-) -> Result<(), RecordError> {
-    for body in &model.bodies {
-        for (k, c) in body.colliders.iter().enumerate() {
-            let path = format!("{}/geom{k}", paths.body(&body.name));
-            let o = &c.geometry.origin;
-            rec.log_static(
-                path.as_str(),
-                &Transform3D::from_translation_rotation(
-                    [o.translation.x, o.translation.y, o.translation.z],
-                    quat(o.rotation),
-                ),
-            )
-            .map_err(log_err)?;
-            let color = link_color(&body.name, c.role);
-            match c.geometry.shape {
-                Shape::Box { size } => rec.log_static(
-                    path.as_str(),
-                    &Boxes3D::from_half_sizes([[size.x / 2.0, size.y / 2.0, size.z / 2.0]])
-                        .with_colors([color])
-                        .with_fill_mode(FillMode::Solid),
-                ),
-                // The physics makes cylinders capsules (legged_gym's choice): draw those.
-                // rerun's capsule runs from z = 0 to z = length; ours is centred.
-                Shape::Cylinder { radius, length } => rec.log_static(
-                    path.as_str(),
-                    &Capsules3D::from_lengths_and_radii([length], [radius])
-                        .with_translations([[0.0, 0.0, -length / 2.0]])
-                        .with_colors([color])
-                        .with_fill_mode(FillMode::Solid),
-                ),
-                Shape::Sphere { radius } => rec.log_static(
-                    path.as_str(),
-                    &Ellipsoids3D::from_radii([radius])
-                        .with_colors([color])
-                        .with_fill_mode(FillMode::Solid),
-                ),
-            }
-            .map_err(log_err)?;
-        }
-    }
-    Ok(())
 }

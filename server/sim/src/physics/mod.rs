@@ -3,10 +3,12 @@
 mod actuation;
 mod inertia;
 mod joint_state;
+mod params;
 mod robot_state;
 mod world;
 
 pub use actuation::{ActuatorParams, FRICTION_RAMP_SPEED, passive_torque, pd_torque};
 pub use joint_state::{joint_angle, joint_speed};
+pub use params::PhysicsParams;
 pub use robot_state::RobotState;
-pub use world::{CONTACT_FORCE_THRESHOLD, PhysicsParams, RobotPhysicalParams, RobotWorld};
+pub use world::{CONTACT_FORCE_THRESHOLD, RobotPhysicalParams, RobotWorld};

@@ -1,6 +1,7 @@
 //! The paper's locomotion task: config, observations, labels, rewards, gait clock, randomisation.
 
 mod config;
+mod config_validation;
 mod context;
 mod frames;
 mod gait;
