@@ -1,6 +1,6 @@
 """The observation o_t (53 values) exactly as the server builds it, from a MuJoCo state.
 
-Mirrors ``server/sim/src/task/observation.rs`` (the table) and ``env/group.rs``
+Mirrors ``server/sim/src/task/observation.rs`` (the table) and ``env/observation_rows.rs``
 (``write_observation``, ``write_task_values``): slices ``cmd, phi, omega, q, qdot, last_action,
 mode, clock, ratio``; ``phi`` = (gravity y in the base frame, Euler pitch, gravity z in the base
 frame); each value times its scale, plus noise when asked, clipped to +-``clip_observations``.

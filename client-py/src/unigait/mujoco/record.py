@@ -1,6 +1,6 @@
 """Rerun recordings of MuJoCo rollouts, in the layout of the server's recorder.
 
-Entity paths as ``server/record/src/recorder.rs``: ``world`` (Z up), ``world/robot/<body>``
+Entity paths as ``server/record/src/entity.rs``: ``world`` (Z up), ``world/robot/<body>``
 with its colliders as ``geom<k>`` (static), ``world/terrain``, ``world/feet`` (coloured by
 contact), ``world/command`` and ``world/velocity`` arrows, ``contact/<foot>``, ``command/*``,
 ``state/base_height``, ``state/pitch``, ``state/yaw_rate``, ``mode`` and ``events``; timelines

@@ -1,8 +1,8 @@
 """sim2sim: an exported ONNX policy run in MuJoCo on the flat-ground scenarios of ``unigait eval``.
 
 The scenarios and measures follow ``server/eval`` (``scenario.rs``, ``evaluate.rs``,
-``metrics.rs``) and the metrics carry the same names, so a policy's figures in our simulator and
-in MuJoCo sit side by side:
+``transition.rs``, ``metrics.rs``) and the metrics carry the same names, so a policy's figures
+in our simulator and in MuJoCo sit side by side:
 
 - ``tracking_quad`` / ``tracking_biped``: 10 s, commands from the training ranges;
   ``tracking/<mode>/lin_vel_error_mps`` (mean |v*_xy - v_xy| in the heading frame) and
