@@ -1,11 +1,20 @@
 """Config loading/overrides and the fused ONNX export."""
 
+import dataclasses
+import tomllib
+
 import numpy as np
 import onnx
 import pytest
 import torch
 
-from unigait.config import TrainConfig, load_config, parse_override
+from unigait.config import (
+    TrainConfig,
+    load_config,
+    parse_override,
+    resume_upright_curriculum,
+    with_task_setting,
+)
 from unigait.export import export_onnx, load_policy, max_abs_diff_to_torch
 from unigait.modules import EstimatorActorPolicy
 from unigait.runners import build_networks
@@ -34,6 +43,29 @@ def test_config_overrides_and_toml(tmp_path):
     assert (
         TrainConfig().ppo.num_mini_batches == 4 and TrainConfig().estimator.mini_batch_size == 768
     )
+
+
+def test_task_setting_is_merged_into_the_fragment_and_a_resume_keeps_the_curriculum():
+    fragment = "[rewards.upright_curriculum]\nenabled = true\n\n[env]\ndecimation = 4\n"
+    merged = tomllib.loads(with_task_setting(fragment, "rewards.upright_curriculum.start", 1.3))
+    assert merged == {
+        "rewards": {"upright_curriculum": {"enabled": True, "start": 1.3}},
+        "env": {"decimation": 4},
+    }
+    assert tomllib.loads(with_task_setting("", "modes.biped_probability", 1.0)) == {
+        "modes": {"biped_probability": 1.0}
+    }
+
+    off = load_config(None, [])
+    on = dataclasses.replace(off, env=dataclasses.replace(off.env, task_overrides_toml=fragment))
+    resumed = resume_upright_curriculum(on, {"upright_pitch": 1.35})
+    task = tomllib.loads(resumed.env.task_overrides_toml)
+    assert task["rewards"]["upright_curriculum"] == {"enabled": True, "start": 1.35}
+    assert task["env"] == {"decimation": 4}
+    assert dataclasses.replace(resumed.env, task_overrides_toml=fragment) == on.env
+    # Nothing to carry: no threshold in the checkpoint, or the run has no curriculum.
+    assert resume_upright_curriculum(on, {}) is on
+    assert resume_upright_curriculum(off, {"upright_pitch": 1.35}) is off
 
 
 def test_onnx_export_matches_torch(tmp_path):

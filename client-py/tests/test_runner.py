@@ -30,6 +30,7 @@ def test_runner_trains_logs_checkpoints_and_resumes(tmp_path, capsys):
     assert last["episodes"] > 0 and not math.isnan(last["mean_episode_reward"])
     assert "step_reward/quad_tracking_lin_vel" in last
     assert last["curriculum/upright_pitch"] == FAKE_UPRIGHT_PITCH  # as the session reports it
+    assert runner.state_dict()["upright_pitch"] == FAKE_UPRIGHT_PITCH  # a resume starts there
     assert any(
         not torch.equal(a, b) for a, b in zip(before, runner.estimator.parameters(), strict=True)
     )

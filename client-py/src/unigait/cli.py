@@ -97,7 +97,7 @@ def training_command(argv: Sequence[str]) -> str:
 def _train(args: argparse.Namespace) -> int:
     import torch
 
-    from unigait.config import load_config
+    from unigait.config import load_config, resume_upright_curriculum
     from unigait.env import TorchVecEnv
     from unigait.runners import CheckpointMismatchError, OnPolicyRunner
 
@@ -124,6 +124,9 @@ def _train(args: argparse.Namespace) -> int:
 
         toml = cfg.env.task_overrides_toml + "\n" + QUAD_ONLY_TOML
         cfg = replace(cfg, env=replace(cfg.env, task_overrides_toml=toml))
+    if args.resume:
+        checkpoint = torch.load(args.resume, map_location="cpu", weights_only=False)
+        cfg = resume_upright_curriculum(cfg, checkpoint)
     torch.manual_seed(cfg.runner.seed)
     if cfg.runner.torch_threads > 0:
         torch.set_num_threads(cfg.runner.torch_threads)

@@ -137,6 +137,47 @@ def _toml_value(v: Any) -> str:
     raise TypeError(f"cannot write {v!r} as TOML")
 
 
+def _toml_tables(doc: dict[str, Any], prefix: str = "") -> list[str]:
+    """``doc`` as TOML lines: its plain keys first, then each sub-table under its header."""
+    lines = [f"{k} = {_toml_value(v)}" for k, v in doc.items() if not isinstance(v, dict)]
+    for k, v in doc.items():
+        if isinstance(v, dict):
+            name = f"{prefix}{k}"
+            lines += ["", f"[{name}]", *_toml_tables(v, f"{name}.")]
+    return lines
+
+
+def with_task_setting(task_overrides_toml: str, dotted: str, value: Any) -> str:
+    """The task-override fragment with ``dotted`` (``table.sub.key``) set to ``value``.
+
+    The fragment is parsed and written back whole, since TOML lets a table be defined once.
+    """
+    doc = tomllib.loads(task_overrides_toml)
+    *tables, key = dotted.split(".")
+    node = doc
+    for t in tables:
+        node = node.setdefault(t, {})
+    node[key] = value
+    return "\n".join(_toml_tables(doc)).strip() + "\n"
+
+
+def resume_upright_curriculum(cfg: TrainConfig, checkpoint: dict[str, Any]) -> TrainConfig:
+    """``cfg`` with the upright curriculum starting where ``checkpoint``'s run left it.
+
+    The server's curriculum starts every session at ``rewards.upright_curriculum.start``; a
+    resumed run would otherwise fall back to it (1.0 rad) and spend iterations climbing back
+    while I_up fires far below the pitch the policy had reached. Only when the run's task
+    overrides turn the curriculum on and the checkpoint recorded a threshold.
+    """
+    threshold = checkpoint.get("upright_pitch")
+    overrides = cfg.env.task_overrides_toml
+    curriculum = tomllib.loads(overrides).get("rewards", {}).get("upright_curriculum", {})
+    if threshold is None or not curriculum.get("enabled", False):
+        return cfg
+    toml = with_task_setting(overrides, "rewards.upright_curriculum.start", float(threshold))
+    return dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, task_overrides_toml=toml))
+
+
 def _coerce(section: type, key: str, value: Any) -> Any:
     hints = typing.get_type_hints(section)
     if key not in hints:

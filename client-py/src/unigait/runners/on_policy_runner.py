@@ -112,6 +112,9 @@ class OnPolicyRunner:
         #: the parent checkpoint's list and adds its own line; a resumed run adds none): a
         #: model card's recipe.
         self.stages: list[str] = []
+        #: I_up's threshold at the end of the last rollout (None before one, or when the server
+        #: does not report it); saved so that a resumed run's curriculum starts there.
+        self.upright_pitch: float | None = None
         self.resumed = False
         self.timers = Timers()
         self.log_dir = log_dir
@@ -202,6 +205,7 @@ class OnPolicyRunner:
         if step.upright_pitch is not None:
             # I_up's threshold at the end of the rollout (the task's, or its curriculum's).
             out["curriculum/upright_pitch"] = step.upright_pitch
+            self.upright_pitch = step.upright_pitch
         ep = {k: torch.cat(v) for k, v in ended.items()}
         n_ep = int(ep["reward"].numel())
         out["episodes"] = float(n_ep)
@@ -274,6 +278,7 @@ class OnPolicyRunner:
             "estimator_optimizer": self.estimator_learning.optimizer.state_dict(),
             "learning_rate": self.ppo.learning_rate,
             "stages": list(self.stages),
+            "upright_pitch": self.upright_pitch,
             "config": self.cfg.to_dict(),
             "dims": self.dims,
         }
@@ -336,6 +341,7 @@ class OnPolicyRunner:
         self.iteration = int(state["iteration"])
         self.total_env_steps = int(state.get("total_env_steps", 0))
         self.stages = list(state.get("stages", []))
+        self.upright_pitch = state.get("upright_pitch")
         self.resumed = True
         if self.logger is not None:
             self.logger.drop_after(self.iteration)
