@@ -1,6 +1,7 @@
 """The Python client against the real server: round trip, spec, autoreset, errors, sharding."""
 
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -132,6 +133,25 @@ def test_upright_threshold_is_reported_and_follows_the_curriculum(server):
         client.create_session(SessionConfig(num_envs=2, task_overrides_toml=bad))
     assert err.value.code_name == "INVALID_ARGUMENT"
     assert "upright_curriculum.start" in err.value.details
+
+
+def test_a_recording_follows_the_env_asked_for(server):
+    policy = (Path(__file__).parent / "data" / "test_policy.onnx").read_bytes()
+    with Client(server) as client:
+
+        def record(**kw: int) -> bytes:
+            args = {"num_envs": 3, "seed": 0, "record": True}
+            return client.evaluate(policy, "transition_quad_to_biped", **args, **kw).recording_rrd
+
+        # The layout's followed tab is named after the env (the blueprint's strings are plain).
+        followed = record(record_env=2)
+        assert b"3D: env 2 (followed)" in followed and b"3D: env 0 (followed)" not in followed
+        assert b"3D: env 0 (followed)" in record()
+        with pytest.raises(UnigaitError) as err:
+            record(record_env=3)
+        assert err.value.code_name == "INVALID_ARGUMENT" and "record_env" in err.value.details
+        # The refused request harmed nobody: the server still evaluates.
+        assert client.evaluate(policy, "transition_quad_to_biped", num_envs=1, seed=0).metrics
 
 
 def test_a_paused_client_steps_on_after_the_stream_idle_timeout(start_server):

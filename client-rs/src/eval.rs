@@ -4,9 +4,9 @@
 //! scenario list: the Table VI columns `stairs_up_quad` ... `stairs_down_biped`, `table_vi`,
 //! `transition_biped_to_quad`, `transition_quad_to_biped`, `tracking_quad`, `tracking_biped`,
 //! `flat_quad`, `flat_biped`) and answers with metrics, a JSON report and, for `record`, a
-//! rerun recording of env 0: written to a file (`--out`), sent to a running viewer
-//! (`--connect`), or served from this process for a viewer to join (`--serve`, until Ctrl-C or
-//! `--serve-for`).
+//! rerun recording of one env (`--record-env`, default 0): written to a file (`--out`), sent
+//! to a running viewer (`--connect`), or served from this process for a viewer to join
+//! (`--serve`, until Ctrl-C or `--serve-for`).
 
 use std::collections::HashMap;
 use std::net::{Ipv4Addr, SocketAddr};
@@ -57,7 +57,7 @@ pub const DEFAULT_VIEWER_URL: &str = "rerun+http://127.0.0.1:9876/proxy";
 /// How long `--connect` waits for the viewer to take the recording.
 const CONNECT_TIMEOUT: Duration = Duration::from_secs(30);
 
-/// `unigait record`: evaluate a policy and save, send or serve a rerun recording of env 0.
+/// `unigait record`: evaluate a policy and save, send or serve a rerun recording of one env.
 #[derive(Clone, Debug, clap::Args)]
 #[command(group(
     clap::ArgGroup::new("output")
@@ -108,6 +108,10 @@ pub struct RecordArgs {
         value_parser = parse_memory_limit
     )]
     pub serve_memory_limit: Option<MemoryLimit>,
+    /// The env the recording follows (camera, plots, gait diagram); the next lowest indices
+    /// are the other tabs of the 3D view.
+    #[arg(long, value_name = "K", default_value_t = 0)]
+    pub record_env: u32,
 }
 
 /// Where `unigait record` puts the recording.
@@ -177,8 +181,8 @@ fn read_policy(path: &Path) -> Result<Vec<u8>> {
     std::fs::read(path).with_context(|| format!("cannot read policy `{}`", path.display()))
 }
 
-/// An Evaluate request from policy files.
-pub fn request(args: &RolloutArgs, record: bool) -> Result<v1::EvaluateRequest> {
+/// An Evaluate request from policy files; `record_env`: a recording following that env.
+pub fn request(args: &RolloutArgs, record_env: Option<u32>) -> Result<v1::EvaluateRequest> {
     Ok(v1::EvaluateRequest {
         policy_onnx: read_policy(&args.policy)?.into(),
         biped_policy_onnx: match &args.biped_policy {
@@ -188,7 +192,8 @@ pub fn request(args: &RolloutArgs, record: bool) -> Result<v1::EvaluateRequest> 
         scenario: args.scenario.clone(),
         num_envs: args.envs,
         seed: args.seed,
-        record,
+        record: record_env.is_some(),
+        record_env,
     })
 }
 
@@ -212,7 +217,7 @@ pub fn format_table(metrics: &HashMap<String, f64>) -> String {
 /// `unigait eval`: print the metrics table (and the JSON report with `--json`).
 pub async fn run_eval(client: &mut Client, args: &EvalArgs) -> Result<()> {
     let reply = client
-        .evaluate(request(&args.rollout, false)?)
+        .evaluate(request(&args.rollout, None)?)
         .await
         .with_context(|| format!("evaluating on `{}`", args.rollout.scenario))?;
     let table = format_table(&reply.metrics);
@@ -233,7 +238,7 @@ pub async fn run_record(client: &mut Client, args: &RecordArgs) -> Result<()> {
         options.check()?;
     }
     let reply = client
-        .evaluate(request(&args.rollout, true)?)
+        .evaluate(request(&args.rollout, Some(args.record_env))?)
         .await
         .with_context(|| format!("recording `{}`", args.rollout.scenario))?;
     if reply.recording_rrd.is_empty() {

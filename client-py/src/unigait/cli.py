@@ -229,6 +229,7 @@ def _evaluate(args: argparse.Namespace) -> int:
             num_envs=args.num_envs,
             seed=args.seed,
             record=args.record is not None,
+            record_env=args.record_env,
             biped_policy_onnx=biped,
         )
     for name in sorted(result.metrics):
@@ -385,7 +386,10 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--num-envs", type=int, default=0)
     v.add_argument("--seed", type=int, default=0)
     v.add_argument("--biped-policy", help="second ONNX policy for the two-policy baseline")
-    v.add_argument("--record", metavar="OUT.rrd", help="write a rerun recording of env 0")
+    v.add_argument("--record", metavar="OUT.rrd", help="write a rerun recording (of env 0)")
+    v.add_argument(
+        "--record-env", type=int, metavar="K", help="the env the recording follows (default 0)"
+    )
     v.add_argument("--report", metavar="OUT.json", help="write the full JSON report")
     v.set_defaults(func=_evaluate)
 

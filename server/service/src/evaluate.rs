@@ -1,5 +1,6 @@
 //! The Evaluate RPC: roll a client's ONNX policy out on the server's own envs over a named
-//! scenario and return the metrics, the JSON report and, on request, a rerun recording of env 0.
+//! scenario and return the metrics, the JSON report and, on request, a rerun recording that
+//! follows one env (`record_env`, default 0).
 //!
 //! [`handle`] is blocking (it builds envs and steps them): call it from the handler on a
 //! blocking thread, e.g. `blocking(move || crate::evaluate::handle(request, &ctx)).await`.
@@ -155,7 +156,7 @@ fn load(
     }))
 }
 
-/// Records env 0 of the first case the evaluation runs.
+/// Records the first case the evaluation runs, following the asked env (`record_env`).
 struct FirstCaseRecorder {
     recorder: Option<Recorder>,
     active: bool,
@@ -245,9 +246,22 @@ pub fn handle(
         threads: 0,
         max_envs: ctx.max_envs,
     };
+    let record_env = request.record_env.map_or(0, |k| k as usize);
+    if request.record && request.scenario != unigait_eval::TABLE_VI {
+        let envs = match options.num_envs {
+            Some(n) => n,
+            None => unigait_eval::scenario(&request.scenario)?.default_envs,
+        };
+        if record_env >= envs {
+            return Err(ServiceError::InvalidArgument(format!(
+                "record_env {record_env} is not among the {envs} envs this evaluation runs"
+            )));
+        }
+    }
     let mut observer = FirstCaseRecorder {
         recorder: if request.record {
             let options = RecordOptions {
+                env_index: record_env,
                 name: format!("{} ({})", request.scenario, policies.kind()),
                 ..RecordOptions::default()
             };
@@ -260,8 +274,13 @@ pub fn handle(
         error: None,
     };
     let report = evaluate(&request.scenario, &policies, &options, &mut observer)?;
-    if let Some(e) = observer.error.take() {
-        return Err(ServiceError::Internal(format!("recording failed: {e}")));
+    match observer.error.take() {
+        // A Table VI case smaller than the env asked for (the other scenarios are checked above).
+        Some(e @ RecordError::EnvIndex { .. }) => {
+            return Err(ServiceError::InvalidArgument(format!("record_env: {e}")));
+        }
+        Some(e) => return Err(ServiceError::Internal(format!("recording failed: {e}"))),
+        None => {}
     }
     let recording_rrd = match observer.recorder.take() {
         Some(r) => r

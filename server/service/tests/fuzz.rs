@@ -231,6 +231,7 @@ async fn issue_14_fuzz_every_rpc_bounded() {
                     num_envs: extreme_u32(&mut rng),
                     seed: rng.random(),
                     record: rng.random(),
+                    record_env: rng.random::<bool>().then(|| extreme_u32(&mut rng)),
                 };
                 check("evaluate", tokio::time::timeout(t, c.evaluate(req)).await);
             }

@@ -514,6 +514,7 @@ fn evaluate_request(policy: Vec<u8>, scenario: &str, envs: u32) -> v1::EvaluateR
         num_envs: envs,
         seed: 1,
         record: false,
+        record_env: None,
     }
 }
 

@@ -130,6 +130,7 @@ class Client(ClosesOnExit):
         num_envs: int = 0,
         seed: int = 0,
         record: bool = False,
+        record_env: int | None = None,
         biped_policy_onnx: bytes = b"",
     ) -> EvaluateResult:
         """Roll out an ONNX policy on the server over a named scenario.
@@ -139,7 +140,9 @@ class Client(ClosesOnExit):
             scenario: Scenario name, e.g. ``"stairs_up_quad"``.
             num_envs: Trials (0: the scenario's default).
             seed: Seed of the rollout.
-            record: Ask for a rerun recording of env 0.
+            record: Ask for a rerun recording.
+            record_env: The env the recording follows (default 0; ``INVALID_ARGUMENT`` if the
+                scenario runs fewer envs).
             biped_policy_onnx: Optional second policy for the two-policy baseline.
         """
         req = pb.EvaluateRequest(
@@ -149,6 +152,7 @@ class Client(ClosesOnExit):
             num_envs=num_envs,
             seed=seed,
             record=record,
+            record_env=record_env,
         )
         resp = call(lambda: self.stub.Evaluate(req))
         return EvaluateResult(dict(resp.metrics), resp.report_json, bytes(resp.recording_rrd))
