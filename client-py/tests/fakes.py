@@ -198,6 +198,8 @@ class FakeSimulator(pb_grpc.SimulatorServicer):
 
     def __init__(self) -> None:
         self.sims: dict[str, FakeSim] = {}
+        #: (scenario, seed) of each Evaluate request, in order.
+        self.evaluated: list[tuple[str, int]] = []
 
     def _sim(self, session_id: str, context: grpc.ServicerContext) -> FakeSim:
         if session_id not in self.sims:
@@ -245,6 +247,7 @@ class FakeSimulator(pb_grpc.SimulatorServicer):
     def Evaluate(self, request: object, context: grpc.ServicerContext) -> object:
         if not request.policy_onnx:
             context.abort(grpc.StatusCode.INVALID_ARGUMENT, "policy_onnx is empty")
+        self.evaluated.append((request.scenario, request.seed))
         metrics = {"policy_bytes": float(len(request.policy_onnx)), "num_envs": request.num_envs}
         return pb.EvaluateResponse(
             metrics=metrics,

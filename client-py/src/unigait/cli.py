@@ -242,18 +242,41 @@ def _evaluate(args: argparse.Namespace) -> int:
 
 
 def _ship(args: argparse.Namespace) -> int:
+    from unigait.selection import describe, select_checkpoint
     from unigait.ship import ship
 
+    if args.select_last > 0 and (args.checkpoint or args.select_seed == args.eval_seed):
+        print(
+            "error: --select-last chooses the checkpoint (no --checkpoint) on a seed other "
+            "than --eval-seed",
+            file=sys.stderr,
+        )
+        return 2
+    checkpoint = Path(args.checkpoint) if args.checkpoint else None
+    selection = None
     with _servers(args.server or []) as addresses:
+        if args.select_last > 0:
+            ranked = select_checkpoint(
+                Path(args.run_dir),
+                args.preset,
+                addresses[0],
+                args.select_last,
+                args.select_seed,
+                args.num_envs,
+            )
+            checkpoint = ranked[0].path
+            selection = describe(ranked, args.preset, args.select_seed)
+            print(selection)
         folder = ship(
             Path(args.run_dir),
             args.name,
             args.preset,
             addresses,
             out_root=Path(args.out_root),
-            checkpoint_path=Path(args.checkpoint) if args.checkpoint else None,
+            checkpoint_path=checkpoint,
             eval_seed=args.eval_seed,
             num_envs=args.num_envs,
+            selection=selection,
         )
     print((folder / "MODEL_CARD.md").read_text())
     print(f"shipped to {folder}")
@@ -402,6 +425,14 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--server", action="append", metavar="HOST:PORT")
     s.add_argument("--eval-seed", type=int, default=1000, help="a seed training never used")
     s.add_argument("--num-envs", type=int, default=64)
+    s.add_argument(
+        "--select-last",
+        type=int,
+        default=0,
+        metavar="N",
+        help="ship the best of the run's last N checkpoints, judged on --select-seed",
+    )
+    s.add_argument("--select-seed", type=int, default=2000, help="validation seed of --select-last")
     s.set_defaults(func=_ship)
 
     c = sub.add_parser("compare-rsl-rl", help="our learner vs rsl_rl's runner, quad on flat")

@@ -111,7 +111,8 @@ def _progress(run_dir: Path) -> list[dict[str, str]]:
         return list(csv.DictReader(f))
 
 
-def _metric(evals: dict[str, dict[str, float]], check: Check) -> float | None:
+def metric_of(evals: dict[str, dict[str, float]], check: Check) -> float | None:
+    """The figure ``check`` judges, if the evaluation has it."""
     value = evals.get(check.scenario, {}).get(check.metric)
     return None if value is None else float(value)
 
@@ -126,8 +127,13 @@ def model_card(
     eval_seed: int,
     num_envs: int,
     run_dir: str | None = None,
+    selection: str | None = None,
 ) -> str:
-    """The model card's Markdown text (``run_dir``: the training output shipped from)."""
+    """The model card's Markdown text.
+
+    ``run_dir`` is the training output shipped from; ``selection`` says how the checkpoint was
+    chosen, when it was.
+    """
     steps = int(checkpoint.get("total_env_steps", 0))
     iterations = int(checkpoint.get("iteration", 0))
     wall_s = sum(float(r.get("iteration_time_s", 0.0) or 0.0) for r in rows)
@@ -150,12 +156,14 @@ def model_card(
         "| --- | --- | --- | --- | --- | --- |",
     ]
     for c in checks:
-        v = _metric(evals, c)
+        v = metric_of(evals, c)
         shown = "n/a" if v is None else f"{v:.3f}"
         lines.append(
             f"| {c.label} | `{c.scenario}` | `{c.metric}` | {c.op} {c.bound} | {shown} | "
             f"{'yes' if c.passes(v) else 'no'} |"
         )
+    if selection:
+        lines += ["", selection]
     biped = evals.get("tracking_biped", {})
     if "tracking/biped/mean_pitch_rad" in biped:
         # Progress the milestone table does not show until the robot is upright.
@@ -233,6 +241,7 @@ def ship(
     checkpoint_path: Path | None = None,
     eval_seed: int = 1000,
     num_envs: int = 64,
+    selection: str | None = None,
 ) -> Path:
     """Export, evaluate and document the latest checkpoint of ``run_dir``.
 
@@ -245,6 +254,7 @@ def ship(
         checkpoint_path: A specific checkpoint instead of ``model_latest.pt``.
         eval_seed: Evaluation seed (not one training used).
         num_envs: Envs per scenario.
+        selection: How ``checkpoint_path`` was chosen (for the model card), if it was.
 
     Returns:
         The policy folder.
@@ -288,6 +298,7 @@ def ship(
         eval_seed,
         num_envs,
         str(run_dir),
+        selection,
     )
     (folder / "MODEL_CARD.md").write_text(card)
     return folder

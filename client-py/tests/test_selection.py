@@ -1,0 +1,64 @@
+"""Choosing the checkpoint to ship on a validation seed: the score, the candidates, the CLI."""
+
+import pytest
+from test_cli import SMALL
+
+from unigait.cli import main
+from unigait.selection import milestone_score, recent_checkpoints
+from unigait.ship import M2, MILESTONE_SCENARIOS
+
+
+def test_milestone_score_counts_criteria_and_sums_clipped_relative_margins():
+    evals = {
+        "tracking_quad": {
+            "tracking/quad/lin_vel_error_mps": 0.12,  # <= 0.15: met, margin +0.2
+            "tracking/quad/ang_vel_error_radps": 0.3,  # <= 0.2: not met, -0.5
+            "tracking/quad/termination_rate": 0.0,  # <= 0.05: met, +1.0
+        },
+        "tracking_biped": {
+            "tracking/biped/upright_share": 0.99,  # >= 0.9: met, +0.1
+            "tracking/biped/lin_vel_error_mps": 0.6,  # <= 0.2: not met, -2 clipped to -1
+        },
+        "transition_biped_to_quad": {"success_rate": 1.0},  # >= 0.9: met, +1/9
+        # transition_quad_to_biped missing: not met, -1
+    }
+    met, margin = milestone_score(evals, M2)
+    assert met == 4
+    assert margin == pytest.approx(0.2 - 0.5 + 1.0 + 0.1 - 1.0 + 0.1 / 0.9 - 1.0)
+
+
+def test_recent_checkpoints_are_the_highest_iterations_in_order(tmp_path):
+    for name in ("model_25.pt", "model_100.pt", "model_50.pt", "model_latest.pt", "model_7x.pt"):
+        (tmp_path / name).write_bytes(b"")
+    assert [i for i, _ in recent_checkpoints(tmp_path, 2)] == [50, 100]
+    assert [p.name for _, p in recent_checkpoints(tmp_path, 9)] == [
+        "model_25.pt",
+        "model_50.pt",
+        "model_100.pt",
+    ]
+    assert recent_checkpoints(tmp_path, 0) == []
+
+
+def test_ship_chooses_on_the_validation_seed_and_reports_on_the_evaluation_seed(
+    fake_server, tmp_path, capsys
+):
+    address, servicer = fake_server
+    run = tmp_path / "run"
+    train = ["train", "--server", address, "--num-envs", "6", "--log-dir", str(run), *SMALL]
+    assert main([*train, "--iterations", "3"]) == 0
+    ship = ["ship", "--server", address, "--run-dir", str(run), "--preset", "unified_flat"]
+    ship += ["--name", "u", "--out-root", str(tmp_path / "policies"), "--num-envs", "4"]
+    servicer.evaluated.clear()
+    assert main([*ship, "--select-last", "2", "--select-seed", "7", "--eval-seed", "1000"]) == 0
+    scenarios = list(MILESTONE_SCENARIOS["unified_flat"])
+    # Iterations 2 and 3 on seed 7, then the chosen one on seed 1000.
+    assert servicer.evaluated == [(s, 7) for s in scenarios] * 2 + [(s, 1000) for s in scenarios]
+    card = (tmp_path / "policies" / "u" / "MODEL_CARD.md").read_text()
+    # The fake server's figures are the same for both: the later checkpoint wins the tie.
+    assert "last 2 checkpoints on validation seed 7" in card
+    assert "2: 0/7 (-7.00), 3: 0/7 (-7.00). Iteration 3 ranked first" in card
+    capsys.readouterr()
+    # The validation seed must not be the evaluation seed, and a given checkpoint is not chosen.
+    assert main([*ship, "--select-last", "2", "--select-seed", "1000"]) == 2
+    assert main([*ship, "--select-last", "2", "--checkpoint", str(run / "model_2.pt")]) == 2
+    assert "--select-last chooses the checkpoint" in capsys.readouterr().err
