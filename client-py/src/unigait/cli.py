@@ -409,7 +409,9 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--num-envs", type=int, default=0)
     v.add_argument("--seed", type=int, default=0)
     v.add_argument("--biped-policy", help="second ONNX policy for the two-policy baseline")
-    v.add_argument("--record", metavar="OUT.rrd", help="write a rerun recording (of env 0)")
+    v.add_argument(
+        "--record", metavar="OUT.rrd", help="write a rerun recording (env 0 unless --record-env)"
+    )
     v.add_argument(
         "--record-env", type=int, metavar="K", help="the env the recording follows (default 0)"
     )
