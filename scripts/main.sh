@@ -23,11 +23,9 @@ echo "== the shipped policy (assets/policies/quad_flat): velocity tracking on fo
   --report "$OUT/shipped_quad_flat_eval.json" --record "$OUT/shipped_quad_flat.rrd"
 
 echo "== the shipped unified policy (assets/policies/unified_flat): both mode switches, recorded"
-# The recordings follow env 1: with this seed env 0 leaves its biped stance before the switch
-# of transition_biped_to_quad (1 of 16; the report counts it "not in posture at the switch").
 for scenario in transition_quad_to_biped transition_biped_to_quad; do
   "$VENV/bin/python" -m unigait evaluate --policy assets/policies/unified_flat/policy.onnx \
-    --scenario "$scenario" --num-envs 16 --seed 1000 --record-env 1 \
+    --scenario "$scenario" --num-envs 16 --seed 1000 \
     --report "$OUT/shipped_unified_flat_$scenario.json" --record "$OUT/shipped_unified_flat_$scenario.rrd"
 done
 
