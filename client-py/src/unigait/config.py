@@ -115,12 +115,7 @@ class TrainConfig:
 
     def to_toml(self) -> str:
         """The config as TOML text (loadable with :func:`load_config`)."""
-        lines: list[str] = []
-        for section, values in self.to_dict().items():
-            lines.append(f"[{section}]")
-            lines += [f"{k} = {_toml_value(v)}" for k, v in values.items()]
-            lines.append("")
-        return "\n".join(lines)
+        return _toml_document(self.to_dict())
 
 
 def _toml_value(v: Any) -> str:
@@ -147,6 +142,11 @@ def _toml_tables(doc: dict[str, Any], prefix: str = "") -> list[str]:
     return lines
 
 
+def _toml_document(doc: dict[str, Any]) -> str:
+    """``doc`` as a TOML document."""
+    return "\n".join(_toml_tables(doc)).strip() + "\n"
+
+
 def with_task_setting(task_overrides_toml: str, dotted: str, value: Any) -> str:
     """The task-override fragment with ``dotted`` (``table.sub.key``) set to ``value``.
 
@@ -158,7 +158,7 @@ def with_task_setting(task_overrides_toml: str, dotted: str, value: Any) -> str:
     for t in tables:
         node = node.setdefault(t, {})
     node[key] = value
-    return "\n".join(_toml_tables(doc)).strip() + "\n"
+    return _toml_document(doc)
 
 
 def resume_upright_curriculum(cfg: TrainConfig, checkpoint: dict[str, Any]) -> TrainConfig:

@@ -69,7 +69,8 @@ impl Default for EvalOptions {
 }
 
 impl EvalOptions {
-    fn envs(&self, scenario: &Scenario) -> Result<usize, EvalError> {
+    /// Envs (trials) a run of `scenario` uses: `num_envs`, or the scenario's default.
+    pub fn envs(&self, scenario: &Scenario) -> Result<usize, EvalError> {
         let n = self.num_envs.unwrap_or(scenario.default_envs);
         if n == 0 || n > self.max_envs {
             return Err(EvalError::InvalidOption(format!(

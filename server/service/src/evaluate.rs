@@ -248,10 +248,7 @@ pub fn handle(
     };
     let record_env = request.record_env.map_or(0, |k| k as usize);
     if request.record && request.scenario != unigait_eval::TABLE_VI {
-        let envs = match options.num_envs {
-            Some(n) => n,
-            None => unigait_eval::scenario(&request.scenario)?.default_envs,
-        };
+        let envs = options.envs(&unigait_eval::scenario(&request.scenario)?)?;
         if record_env >= envs {
             return Err(ServiceError::InvalidArgument(format!(
                 "record_env {record_env} is not among the {envs} envs this evaluation runs"
