@@ -28,7 +28,7 @@ REWARD_TERMS = [
     "quad_tracking_ang_vel", "quad_base_height", "quad_base_angle", "quad_lin_vel_z",
     "quad_periodic_gait", "quad_foot_clearance", "biped_tracking_lin_vel",
     "biped_tracking_ang_vel", "biped_base_height", "biped_base_angle", "biped_periodic_gait",
-    "biped_foot_clearance", "biped_rear_legs", "biped_upright_contacts",
+    "biped_foot_clearance", "biped_rear_legs", "biped_upright_contacts", "biped_head_contact",
 ]  # fmt: skip
 
 
@@ -134,7 +134,8 @@ class FakeSim:
         self.step_count += 1
         self.age += 1
         reward = (0.1 - 0.01 * np.mean(actions**2, axis=1)).astype(np.float32)
-        terms = np.repeat(reward[:, None] / 25, 25, axis=1).astype(np.float32)
+        k = len(REWARD_TERMS)
+        terms = np.repeat(reward[:, None] / k, k, axis=1).astype(np.float32)
         terminated = (self.age == 2) & (np.arange(self.n) % 4 == 3)
         truncated = (self.age >= self.max_steps) & ~terminated
         ended = np.flatnonzero(terminated | truncated)

@@ -150,20 +150,15 @@ fn one_front_leg_carries_the_biped_stance_at_the_lowest_gain() {
 
 /// The head is not the trunk: a robot pitched nose-down onto its head (pitch pi/2, nothing
 /// else near the ground) is reported in head contact, and that neither ends the episode nor
-/// costs the collision penalty.
-#[test]
-fn head_contact_is_reported_but_neither_terminates_nor_penalises() {
+/// costs the collision penalty. Returns the head term's value at each step on the head alone.
+fn head_rest_steps(extra: &str) -> Vec<f32> {
     let model = RobotModel::go2();
-    let mut env = batch(calm_config(""), 1, 0, 1);
+    let mut env = batch(calm_config(extra), 1, 0, 1);
     let q = default_q(&model);
     let rot = Rotation::from_rotation_y(FRAC_PI_2);
     env.teleport_env(0, pose_with_lowest_point(&model, rot, &q, 0.003), &q);
-    let collision = RewardTerm::ALL
-        .iter()
-        .position(|t| *t == RewardTerm::Collision)
-        .expect("collision term");
     let zeros = vec![0.0; NUM_JOINTS];
-    let mut head_steps = 0;
+    let mut head_terms = Vec::new();
     for step in 0..15 {
         let out = env.step(&zeros).expect("step").clone();
         let s = *env.robot_state(0);
@@ -172,15 +167,41 @@ fn head_contact_is_reported_but_neither_terminates_nor_penalises() {
         }
         assert!(s.head_force > 1.0, "step {step}: flag without force");
         if s.trunk_force == 0.0 && s.penalised_contacts == 0 {
-            head_steps += 1;
             assert_eq!(out.terminated[0], 0, "step {step}: head contact terminated");
             assert_eq!(
-                out.reward_terms[collision], 0.0,
-                "step {step}: head contact penalised"
+                out.reward_terms[RewardTerm::Collision as usize],
+                0.0,
+                "step {step}: head contact penalised as a collision"
             );
+            head_terms.push(out.reward_terms[RewardTerm::BipedHeadContact as usize]);
         }
     }
-    assert!(head_steps >= 3, "only {head_steps} steps on the head alone");
+    assert!(
+        head_terms.len() >= 3,
+        "only {} steps on the head alone",
+        head_terms.len()
+    );
+    head_terms
+}
+
+#[test]
+fn head_contact_is_reported_but_neither_terminates_nor_penalises() {
+    // The paper's task, in either mode: the head rest is free.
+    for biped in ["0.0", "1.0"] {
+        let terms = head_rest_steps(&format!("[modes]\nbiped_probability = {biped}"));
+        assert!(terms.iter().all(|&t| t == 0.0), "{terms:?}");
+    }
+}
+
+/// The optional `biped_head_contact` weight prices each biped-mode step on the head (weight
+/// times the policy dt) and leaves the quad mode alone.
+#[test]
+fn a_weighted_head_contact_term_prices_the_biped_head_rest() {
+    let priced = "[rewards.weights]\nbiped_head_contact = -1.0\n[modes]\nbiped_probability = ";
+    let biped = head_rest_steps(&format!("{priced}1.0"));
+    assert!(biped.iter().all(|&t| (t + 0.02).abs() < 1e-6), "{biped:?}");
+    let quad = head_rest_steps(&format!("{priced}0.0"));
+    assert!(quad.iter().all(|&t| t == 0.0), "{quad:?}");
 }
 
 /// A robot resting on its head alone gets the extra solver iterations of a fallen robot, unless

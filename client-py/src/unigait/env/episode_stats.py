@@ -26,7 +26,7 @@ class EpisodeStats:
         """Add one step; return the totals of the episodes that ended in it.
 
         Returns:
-            ``{"reward": f32 [K], "length": i64 [K], "terms": f32 [K, 25], "time_out": bool [K]}``
+            ``{"reward": f32 [K], "length": i64 [K], "terms": f32 [K, 26], "time_out": bool [K]}``
             for the K envs that ended (empty tensors when none did).
         """
         self.reward_sum += step.reward

@@ -468,6 +468,7 @@ fn reward_inputs(
     RewardInputs {
         terminated,
         penalised_contacts: s.penalised_contacts,
+        head_contact: s.head_force > cfg.rewards.contact_threshold,
         base_angvel_b: inv * s.base_angvel,
         base_linvel_b: inv * s.base_linvel,
         heading_linvel: to_heading_frame(heading, s.base_linvel),

@@ -18,6 +18,8 @@ pub struct RewardInputs {
     pub terminated: bool,
     /// Number of thighs and calves touching the terrain.
     pub penalised_contacts: u32,
+    /// The head touches the terrain (contact force above the threshold).
+    pub head_contact: bool,
     /// Base angular velocity in the base frame (rad/s).
     pub base_angvel_b: Vec3,
     /// Base linear velocity in the base frame (m/s).
@@ -238,6 +240,11 @@ pub fn reward_upright_contacts(
     f32::from(u8::from(stance_down && raised_up))
 }
 
+/// 1 while the head touches the terrain.
+pub fn cost_head_contact(head_contact: bool) -> f32 {
+    f32::from(u8::from(head_contact))
+}
+
 /// Unweighted, unmasked value of every term.
 pub fn raw_terms(
     x: &RewardInputs,
@@ -312,6 +319,7 @@ pub fn raw_terms(
             RewardTerm::BipedUprightContacts => {
                 reward_upright_contacts(&contact, &k.stance_feet, &k.raised_feet)
             }
+            RewardTerm::BipedHeadContact => cost_head_contact(x.head_contact),
         };
     }
     v

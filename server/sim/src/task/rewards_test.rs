@@ -182,7 +182,10 @@ fn biped_terms() {
 
 #[test]
 fn masks_indicators_and_ablations() {
-    let cfg = TaskConfig::default();
+    let mut cfg = TaskConfig::default();
+    // The one term off by default gets a weight, so every term shows its mask.
+    cfg.rewards.weights.0[RewardTerm::BipedHeadContact as usize] = -1.0;
+    let weight = |t: RewardTerm| cfg.rewards.weights.0[t as usize];
     let raw = [1.0; RewardTerm::COUNT];
     let mut terms = [0.0; RewardTerm::COUNT];
     // Quad mode: every biped term is exactly 0, every quad term is weight * dt.
@@ -190,7 +193,7 @@ fn masks_indicators_and_ablations() {
     weigh_terms(&raw, &ind, &cfg, &mut terms);
     for t in RewardTerm::ALL {
         let expected = match t.group() {
-            TermGroup::Common | TermGroup::Quad => t.default_weight() * 0.02,
+            TermGroup::Common | TermGroup::Quad => weight(t) * 0.02,
             TermGroup::Biped | TermGroup::BipedUpright => 0.0,
         };
         close(terms[t as usize], expected);
@@ -200,7 +203,7 @@ fn masks_indicators_and_ablations() {
     weigh_terms(&raw, &ind, &cfg, &mut terms);
     for t in RewardTerm::ALL {
         let expected = match t.group() {
-            TermGroup::Common | TermGroup::Biped => t.default_weight() * 0.02,
+            TermGroup::Common | TermGroup::Biped => weight(t) * 0.02,
             TermGroup::Quad | TermGroup::BipedUpright => 0.0,
         };
         close(terms[t as usize], expected);
@@ -248,6 +251,45 @@ fn masks_indicators_and_ablations() {
         let biped = matches!(t.group(), TermGroup::Biped | TermGroup::BipedUpright);
         assert_eq!(changed, biped, "{}", t.name());
     }
+}
+
+#[test]
+fn head_contact_is_priced_only_in_the_biped_mode_and_only_when_asked() {
+    close(cost_head_contact(true), 1.0);
+    close(cost_head_contact(false), 0.0);
+    let mut raw = [0.0; RewardTerm::COUNT];
+    raw[RewardTerm::BipedHeadContact as usize] = cost_head_contact(true);
+    let mut terms = [0.0; RewardTerm::COUNT];
+    // The paper's task: weight 0, so a head rest costs nothing.
+    let paper = TaskConfig::default();
+    weigh_terms(
+        &raw,
+        &fixed_indicators(true, 1.5, &paper),
+        &paper,
+        &mut terms,
+    );
+    close(terms[RewardTerm::BipedHeadContact as usize], 0.0);
+    // Weight -1: -1 * 0.02 per step in the biped mode at any pitch, nothing in the quad mode.
+    let mut priced = TaskConfig::default();
+    priced.rewards.weights.0[RewardTerm::BipedHeadContact as usize] = -1.0;
+    priced.rewards.only_positive = false;
+    for pitch in [0.5, 1.5] {
+        let total = weigh_terms(
+            &raw,
+            &fixed_indicators(true, pitch, &priced),
+            &priced,
+            &mut terms,
+        );
+        close(terms[RewardTerm::BipedHeadContact as usize], -0.02);
+        close(total, -0.02);
+    }
+    weigh_terms(
+        &raw,
+        &fixed_indicators(false, 0.0, &priced),
+        &priced,
+        &mut terms,
+    );
+    close(terms[RewardTerm::BipedHeadContact as usize], 0.0);
 }
 
 #[test]
