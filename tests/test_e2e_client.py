@@ -225,3 +225,22 @@ def test_local_server_ends_with_the_process_that_started_it(server_bin, tmp_path
             raise AssertionError("the server outlived the process that started it")
     finally:
         parent.kill()
+
+
+def test_every_presets_task_overrides_are_a_valid_task_config(server):
+    """A preset's task fragment is only checked by the server: each must open a session, and
+    the unified presets' priced head rest must reach the effective config."""
+    import tomllib
+
+    from unigait import presets
+    from unigait.config import load_config
+
+    with Client(server) as client:
+        for name in presets.names():
+            fragment = load_config(None, presets.overrides_of(name)).env.task_overrides_toml
+            with client.create_session(
+                SessionConfig(num_envs=1, task_overrides_toml=fragment)
+            ) as s:
+                weights = tomllib.loads(s.spec.task_config_toml)["rewards"]["weights"]
+            expected = -3.0 if name.startswith("unified") else 0.0
+            assert weights["biped_head_contact"] == expected, name
