@@ -243,4 +243,4 @@ def test_every_presets_task_overrides_are_a_valid_task_config(server):
             ) as s:
                 weights = tomllib.loads(s.spec.task_config_toml)["rewards"]["weights"]
             expected = -3.0 if name.startswith("unified") else 0.0
-            assert weights["biped_head_contact"] == expected, name
+            assert weights["biped_body_contact"] == expected, name

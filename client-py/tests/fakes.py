@@ -28,7 +28,7 @@ REWARD_TERMS = [
     "quad_tracking_ang_vel", "quad_base_height", "quad_base_angle", "quad_lin_vel_z",
     "quad_periodic_gait", "quad_foot_clearance", "biped_tracking_lin_vel",
     "biped_tracking_ang_vel", "biped_base_height", "biped_base_angle", "biped_periodic_gait",
-    "biped_foot_clearance", "biped_rear_legs", "biped_upright_contacts", "biped_head_contact",
+    "biped_foot_clearance", "biped_rear_legs", "biped_upright_contacts", "biped_body_contact",
 ]  # fmt: skip
 
 

@@ -173,7 +173,7 @@ fn head_rest_steps(extra: &str) -> Vec<f32> {
                 0.0,
                 "step {step}: head contact penalised as a collision"
             );
-            head_terms.push(out.reward_terms[RewardTerm::BipedHeadContact as usize]);
+            head_terms.push(out.reward_terms[RewardTerm::BipedBodyContact as usize]);
         }
     }
     assert!(
@@ -193,11 +193,11 @@ fn head_contact_is_reported_but_neither_terminates_nor_penalises() {
     }
 }
 
-/// The optional `biped_head_contact` weight prices each biped-mode step on the head (weight
+/// The optional `biped_body_contact` weight prices each biped-mode step on the head (weight
 /// times the policy dt) and leaves the quad mode alone.
 #[test]
-fn a_weighted_head_contact_term_prices_the_biped_head_rest() {
-    let priced = "[rewards.weights]\nbiped_head_contact = -1.0\n[modes]\nbiped_probability = ";
+fn a_weighted_body_contact_term_prices_the_biped_head_rest() {
+    let priced = "[rewards.weights]\nbiped_body_contact = -1.0\n[modes]\nbiped_probability = ";
     let biped = head_rest_steps(&format!("{priced}1.0"));
     assert!(biped.iter().all(|&t| (t + 0.02).abs() < 1e-6), "{biped:?}");
     let quad = head_rest_steps(&format!("{priced}0.0"));

@@ -74,10 +74,11 @@ reward_terms! {
     BipedFootClearance => "biped_foot_clearance", 1.0, Biped;
     BipedRearLegs => "biped_rear_legs", -0.5, Biped;
     BipedUprightContacts => "biped_upright_contacts", 1.0, Biped;
-    // Not in Table II (weight 0, the paper's task): 1 while the head touches the terrain in the
-    // biped mode. A CPU-sized run rests on its head as a third support and never walks; a
-    // preset may price that rest (README, "Why the biped did not walk").
-    BipedHeadContact => "biped_head_contact", 0.0, Biped;
+    // Not in Table II (weight 0, the paper's task): 1 while anything but a foot (the head, a
+    // thigh, a calf) touches the terrain in the biped mode. A CPU-sized run rests on its head or
+    // kneels on its front shins as a third support and never walks; a preset may price that
+    // rest (README, "Why the biped did not walk").
+    BipedBodyContact => "biped_body_contact", 0.0, Biped;
 }
 
 impl RewardTerm {

@@ -240,9 +240,10 @@ pub fn reward_upright_contacts(
     f32::from(u8::from(stance_down && raised_up))
 }
 
-/// 1 while the head touches the terrain.
-pub fn cost_head_contact(head_contact: bool) -> f32 {
-    f32::from(u8::from(head_contact))
+/// 1 while the head or any thigh or calf touches the terrain (a support other than the feet;
+/// the trunk's contact ends the episode).
+pub fn cost_body_contact(head_contact: bool, penalised_contacts: u32) -> f32 {
+    f32::from(u8::from(head_contact || penalised_contacts > 0))
 }
 
 /// Unweighted, unmasked value of every term.
@@ -319,7 +320,7 @@ pub fn raw_terms(
             RewardTerm::BipedUprightContacts => {
                 reward_upright_contacts(&contact, &k.stance_feet, &k.raised_feet)
             }
-            RewardTerm::BipedHeadContact => cost_head_contact(x.head_contact),
+            RewardTerm::BipedBodyContact => cost_body_contact(x.head_contact, x.penalised_contacts),
         };
     }
     v

@@ -184,7 +184,7 @@ fn biped_terms() {
 fn masks_indicators_and_ablations() {
     let mut cfg = TaskConfig::default();
     // The one term off by default gets a weight, so every term shows its mask.
-    cfg.rewards.weights.0[RewardTerm::BipedHeadContact as usize] = -1.0;
+    cfg.rewards.weights.0[RewardTerm::BipedBodyContact as usize] = -1.0;
     let weight = |t: RewardTerm| cfg.rewards.weights.0[t as usize];
     let raw = [1.0; RewardTerm::COUNT];
     let mut terms = [0.0; RewardTerm::COUNT];
@@ -254,13 +254,16 @@ fn masks_indicators_and_ablations() {
 }
 
 #[test]
-fn head_contact_is_priced_only_in_the_biped_mode_and_only_when_asked() {
-    close(cost_head_contact(true), 1.0);
-    close(cost_head_contact(false), 0.0);
+fn body_contact_is_priced_only_in_the_biped_mode_and_only_when_asked() {
+    // Head, shins or both: one support other than the feet, counted once.
+    close(cost_body_contact(true, 0), 1.0);
+    close(cost_body_contact(false, 1), 1.0);
+    close(cost_body_contact(true, 3), 1.0);
+    close(cost_body_contact(false, 0), 0.0);
     let mut raw = [0.0; RewardTerm::COUNT];
-    raw[RewardTerm::BipedHeadContact as usize] = cost_head_contact(true);
+    raw[RewardTerm::BipedBodyContact as usize] = cost_body_contact(true, 0);
     let mut terms = [0.0; RewardTerm::COUNT];
-    // The paper's task: weight 0, so a head rest costs nothing.
+    // The paper's task: weight 0, so a rest on the head costs nothing.
     let paper = TaskConfig::default();
     weigh_terms(
         &raw,
@@ -268,10 +271,10 @@ fn head_contact_is_priced_only_in_the_biped_mode_and_only_when_asked() {
         &paper,
         &mut terms,
     );
-    close(terms[RewardTerm::BipedHeadContact as usize], 0.0);
+    close(terms[RewardTerm::BipedBodyContact as usize], 0.0);
     // Weight -1: -1 * 0.02 per step in the biped mode at any pitch, nothing in the quad mode.
     let mut priced = TaskConfig::default();
-    priced.rewards.weights.0[RewardTerm::BipedHeadContact as usize] = -1.0;
+    priced.rewards.weights.0[RewardTerm::BipedBodyContact as usize] = -1.0;
     priced.rewards.only_positive = false;
     for pitch in [0.5, 1.5] {
         let total = weigh_terms(
@@ -280,7 +283,7 @@ fn head_contact_is_priced_only_in_the_biped_mode_and_only_when_asked() {
             &priced,
             &mut terms,
         );
-        close(terms[RewardTerm::BipedHeadContact as usize], -0.02);
+        close(terms[RewardTerm::BipedBodyContact as usize], -0.02);
         close(total, -0.02);
     }
     weigh_terms(
@@ -289,7 +292,7 @@ fn head_contact_is_priced_only_in_the_biped_mode_and_only_when_asked() {
         &priced,
         &mut terms,
     );
-    close(terms[RewardTerm::BipedHeadContact as usize], 0.0);
+    close(terms[RewardTerm::BipedBodyContact as usize], 0.0);
 }
 
 #[test]
