@@ -2,6 +2,7 @@
 own runner on the adapter."""
 
 import csv
+import dataclasses
 import math
 
 import pytest
@@ -70,6 +71,20 @@ def test_runner_trains_logs_checkpoints_and_resumes(tmp_path, capsys):
     continued.load(tmp_path / "model_staged.pt")
     continued.record_stage(f"{first} --iterations 9000")  # resumed with another flag
     assert continued.stages == [first]
+    # Resumed with other task overrides it trains another task: that is a stage. The upright
+    # curriculum's start, which a resume sets from the checkpoint, is not.
+    priced = "[rewards.weights]\nbiped_body_contact = -3.0\n"
+    for fragment, stages in (
+        ("[rewards.upright_curriculum]\nstart = 1.4\n", [first]),
+        (priced, [first, f"{first} --set ... --resume {tmp_path / 'model_staged.pt'}"]),
+    ):
+        task = dataclasses.replace(cfg.env, task_overrides_toml=fragment)
+        changed = OnPolicyRunner(
+            TorchVecEnv(FakeSession(8)), dataclasses.replace(cfg, env=task), None
+        )
+        changed.load(tmp_path / "model_staged.pt")
+        changed.record_stage(f"{first} --set ...")
+        assert changed.stages == stages, fragment
     staged = OnPolicyRunner(TorchVecEnv(FakeSession(8)), cfg, None)
     staged.load_weights(tmp_path / "model_staged.pt")
     second = "python -m unigait train --preset unified_flat --init-from 'a b/model.pt'"

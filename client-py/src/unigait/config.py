@@ -178,6 +178,25 @@ def resume_upright_curriculum(cfg: TrainConfig, checkpoint: dict[str, Any]) -> T
     return dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, task_overrides_toml=toml))
 
 
+def same_task(a: str, b: str) -> bool:
+    """Whether two task-override fragments train the same task.
+
+    Equal as TOML, the upright curriculum's ``start`` aside (a resume sets it from the
+    checkpoint).
+    """
+
+    def pruned(table: dict[str, Any]) -> dict[str, Any]:
+        kept = {k: pruned(v) if isinstance(v, dict) else v for k, v in table.items()}
+        return {k: v for k, v in kept.items() if v != {}}
+
+    def core(fragment: str) -> dict[str, Any]:
+        values = tomllib.loads(fragment)
+        values.get("rewards", {}).get("upright_curriculum", {}).pop("start", None)
+        return pruned(values)
+
+    return core(a) == core(b)
+
+
 def _coerce(section: type, key: str, value: Any) -> Any:
     hints = typing.get_type_hints(section)
     if key not in hints:

@@ -177,7 +177,8 @@ def model_card(
     if stages:
         recipe = (
             "The commands that trained it, in order (each later stage starts from the one "
-            "before's checkpoint with `--init-from`):"
+            "before's checkpoint: with `--init-from`, or with `--resume` where the run went on "
+            "with other task overrides):"
         )
     else:  # checkpoints written before the runner kept its stages
         recipe = "The preset's command (this checkpoint does not record its stages):"
@@ -262,7 +263,7 @@ def ship(
     import torch
 
     from unigait.client import Client
-    from unigait.export import export_onnx, load_policy, max_abs_diff_to_torch
+    from unigait.export import export_mismatch, export_onnx, load_policy
 
     source = checkpoint_path or run_dir / "model_latest.pt"
     folder = out_root / name
@@ -277,9 +278,9 @@ def ship(
             shutil.copyfile(run_dir / src, folder / dst)
     policy, dims = load_policy(source)
     export_onnx(policy, folder / "policy.onnx", dims["history_length"], dims["obs_dim"])
-    diff = max_abs_diff_to_torch(policy, folder / "policy.onnx")
+    diff = export_mismatch(policy, folder / "policy.onnx")
     if diff > 1e-5:
-        raise RuntimeError(f"the exported graph differs from torch by {diff:.2e}")
+        raise RuntimeError(f"the exported graph differs from torch by {diff:.2e} (relative)")
     onnx = (folder / "policy.onnx").read_bytes()
     evals: dict[str, dict[str, float]] = {}
     with Client(addresses[0]) as client:

@@ -8,6 +8,7 @@ MSE epochs on the same rollout.
 from __future__ import annotations
 
 import math
+import shlex
 import time
 from pathlib import Path
 from typing import Any
@@ -15,7 +16,7 @@ from typing import Any
 import torch
 
 from unigait.algorithms import PPO, EstimatorLearning
-from unigait.config import TrainConfig
+from unigait.config import TrainConfig, same_task
 from unigait.env import BipedPoseStats, EpisodeStats, ObservationHistory, TorchStep, TorchVecEnv
 from unigait.env.biped_pose import BIPED_MODE
 from unigait.modules import ActorCritic, Estimator, EstimatorActorPolicy
@@ -116,6 +117,9 @@ class OnPolicyRunner:
         #: does not report it); saved so that a resumed run's curriculum starts there.
         self.upright_pitch: float | None = None
         self.resumed = False
+        #: The resumed checkpoint and the task overrides it was trained with.
+        self.resumed_from = ""
+        self.resumed_task = ""
         self.timers = Timers()
         self.log_dir = log_dir
         self.logger: TrainLogger | None = None
@@ -343,16 +347,24 @@ class OnPolicyRunner:
         self.stages = list(state.get("stages", []))
         self.upright_pitch = state.get("upright_pitch")
         self.resumed = True
+        self.resumed_from = str(path)
+        self.resumed_task = str(
+            state.get("config", {}).get("env", {}).get("task_overrides_toml", "")
+        )
         if self.logger is not None:
             self.logger.drop_after(self.iteration)
 
     def record_stage(self, command: str) -> None:
         """Note the command now training these networks.
 
-        A resumed run adds nothing, whatever flags it was resumed with (more iterations, another
-        log directory), unless its checkpoint recorded no stage at all.
+        A resumed run adds nothing for flags that leave the task alone (more iterations, another
+        log directory), unless its checkpoint recorded no stage at all. Resumed with other task
+        overrides (a reward weight, say) it trains another task: that is a stage, recorded with
+        the checkpoint it resumed from.
         """
         if self.resumed and self.stages:
-            return
+            if same_task(self.resumed_task, self.cfg.env.task_overrides_toml):
+                return
+            command = f"{command} --resume {shlex.quote(self.resumed_from)}"
         if not self.stages or self.stages[-1] != command:
             self.stages.append(command)
