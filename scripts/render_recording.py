@@ -38,7 +38,9 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def wait_listening(port: int, proc: subprocess.Popen[bytes], timeout_s: float = 30.0) -> None:
+def wait_listening(
+    port: int, proc: subprocess.Popen[bytes], timeout_s: float = 30.0
+) -> None:
     """Wait until the viewer accepts connections on ``port`` (or fail if it exited)."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
@@ -58,20 +60,28 @@ def compress(src: Path, dst: Path, width: int) -> None:
 
     img = Image.open(src).convert("RGB")
     if img.width > width:
-        img = img.resize((width, round(img.height * width / img.width)), Image.Resampling.LANCZOS)
+        img = img.resize(
+            (width, round(img.height * width / img.width)), Image.Resampling.LANCZOS
+        )
     # 256 colours: the viewer's flat UI survives it, and the file shrinks about 4x.
-    img = img.quantize(colors=256, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE)
+    img = img.quantize(
+        colors=256, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE
+    )
     dst.parent.mkdir(parents=True, exist_ok=True)
     img.save(dst, optimize=True)
 
 
-def render(rrd: Path, out: Path, step: int | None, size: str, width: int, settle_s: float) -> None:
+def render(
+    rrd: Path, out: Path, step: int | None, size: str, width: int, settle_s: float
+) -> None:
     """Stream ``rrd`` up to ``step`` into a headless viewer and save its screenshot as ``out``."""
     from rerun.experimental import ViewerClient
 
     for tool in (RERUN, UNIGAIT):
         if not tool.exists():
-            raise RuntimeError(f"{tool} is missing: run scripts/main.sh (or cargo build --release)")
+            raise RuntimeError(
+                f"{tool} is missing: run scripts/main.sh (or cargo build --release)"
+            )
     with tempfile.TemporaryDirectory(prefix="unigait-render-") as tmp:
         workdir = Path(tmp)
         port = free_port()
@@ -108,7 +118,8 @@ def render(rrd: Path, out: Path, step: int | None, size: str, width: int, settle
             while not shot.exists() or shot.stat().st_size == 0:
                 if time.monotonic() > deadline:
                     raise RuntimeError(
-                        "the viewer wrote no screenshot; see its log:\n" + viewer_log(workdir)
+                        "the viewer wrote no screenshot; see its log:\n"
+                        + viewer_log(workdir)
                     )
                 time.sleep(0.2)
             time.sleep(0.5)
@@ -147,11 +158,20 @@ def main() -> int:
         type=int,
         help="show the rollout at this policy step (default: its end)",
     )
-    p.add_argument("--size", default="1600x900", help="viewer window in points (default 1600x900)")
-    p.add_argument("--width", type=int, default=1600, help="picture width in pixels (default 1600)")
-    p.add_argument("--settle", type=float, default=10.0, help="seconds the viewer renders first")
+    p.add_argument(
+        "--size", default="1600x900", help="viewer window in points (default 1600x900)"
+    )
+    p.add_argument(
+        "--width", type=int, default=1600, help="picture width in pixels (default 1600)"
+    )
+    p.add_argument(
+        "--settle", type=float, default=10.0, help="seconds the viewer renders first"
+    )
     args = p.parse_args()
-    if shutil.which("vulkaninfo") is None and not Path("/usr/share/vulkan/icd.d").exists():
+    if (
+        shutil.which("vulkaninfo") is None
+        and not Path("/usr/share/vulkan/icd.d").exists()
+    ):
         print(
             "no Vulkan driver: apt-get install mesa-vulkan-drivers (software rendering)",
             file=sys.stderr,
