@@ -85,6 +85,17 @@ def test_runner_trains_logs_checkpoints_and_resumes(tmp_path, capsys):
         changed.load(tmp_path / "model_staged.pt")
         changed.record_stage(f"{first} --set ...")
         assert changed.stages == stages, fragment
+    # Another PPO setting trains the same task another way: a stage as well.
+    lower_entropy = dataclasses.replace(cfg.ppo, entropy_coef=0.005)
+    sharpened = OnPolicyRunner(
+        TorchVecEnv(FakeSession(8)), dataclasses.replace(cfg, ppo=lower_entropy), None
+    )
+    sharpened.load(tmp_path / "model_staged.pt")
+    sharpened.record_stage(f"{first} --set ppo.entropy_coef=0.005")
+    assert sharpened.stages == [
+        first,
+        f"{first} --set ppo.entropy_coef=0.005 --resume {tmp_path / 'model_staged.pt'}",
+    ]
     staged = OnPolicyRunner(TorchVecEnv(FakeSession(8)), cfg, None)
     staged.load_weights(tmp_path / "model_staged.pt")
     second = "python -m unigait train --preset unified_flat --init-from 'a b/model.pt'"

@@ -117,9 +117,10 @@ class OnPolicyRunner:
         #: does not report it); saved so that a resumed run's curriculum starts there.
         self.upright_pitch: float | None = None
         self.resumed = False
-        #: The resumed checkpoint and the task overrides it was trained with.
+        #: The resumed checkpoint, and the task overrides and PPO settings it was trained with.
         self.resumed_from = ""
         self.resumed_task = ""
+        self.resumed_ppo: dict[str, Any] | None = None
         self.timers = Timers()
         self.log_dir = log_dir
         self.logger: TrainLogger | None = None
@@ -348,22 +349,24 @@ class OnPolicyRunner:
         self.upright_pitch = state.get("upright_pitch")
         self.resumed = True
         self.resumed_from = str(path)
-        self.resumed_task = str(
-            state.get("config", {}).get("env", {}).get("task_overrides_toml", "")
-        )
+        saved = state.get("config", {})
+        self.resumed_task = str(saved.get("env", {}).get("task_overrides_toml", ""))
+        self.resumed_ppo = saved.get("ppo")
         if self.logger is not None:
             self.logger.drop_after(self.iteration)
 
     def record_stage(self, command: str) -> None:
         """Note the command now training these networks.
 
-        A resumed run adds nothing for flags that leave the task alone (more iterations, another
-        log directory), unless its checkpoint recorded no stage at all. Resumed with other task
-        overrides (a reward weight, say) it trains another task: that is a stage, recorded with
-        the checkpoint it resumed from.
+        A resumed run adds nothing for flags that leave the training alone (more iterations,
+        another log directory), unless its checkpoint recorded no stage at all. Resumed with other
+        task overrides (a reward weight, say) it trains another task, and with other PPO settings
+        (the entropy coefficient, say) another way: either is a stage, recorded with the
+        checkpoint it resumed from.
         """
         if self.resumed and self.stages:
-            if same_task(self.resumed_task, self.cfg.env.task_overrides_toml):
+            same_ppo = self.resumed_ppo is None or self.resumed_ppo == self.cfg.to_dict()["ppo"]
+            if same_ppo and same_task(self.resumed_task, self.cfg.env.task_overrides_toml):
                 return
             command = f"{command} --resume {shlex.quote(self.resumed_from)}"
         if not self.stages or self.stages[-1] != command:
