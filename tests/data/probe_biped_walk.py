@@ -12,7 +12,9 @@ foot's contact share, e.g.::
         .venv/bin/python tests/data/probe_biped_walk.py assets/policies/unified_flat/model.pt
 
 A walking biped follows the sign and roughly the size of vx; one that stands in place moves at
-a few cm/s whatever it is told.
+a few cm/s whatever it is told. The tracking error |v* - v| (what `unigait eval` averages) is
+split into the error of each env's mean velocity over the measured window (how far off its
+walk is) and what the step-to-step sway adds on top.
 """
 
 from __future__ import annotations
@@ -66,7 +68,10 @@ def probe(checkpoint: str, vx: float, envs: int, steps: int, settle: int, seed: 
         history = ObservationHistory(envs, 3, dims["obs_dim"], torch.device("cpu"))
         history.reset(env.last.obs)
         alive = torch.ones(envs, dtype=torch.bool)
-        velocity, upright, head, front = [], [], [], []
+        velocity, upright, head, front, error = [], [], [], [], []
+        command = torch.tensor([vx, 0.0])
+        velocity_sum = torch.zeros(envs, 2)
+        counted = torch.zeros(envs)
         for t in range(steps):
             with torch.no_grad():
                 actions = policy(history.flat.view(envs, 3, -1))
@@ -76,15 +81,23 @@ def probe(checkpoint: str, vx: float, envs: int, steps: int, settle: int, seed: 
             if t < settle:
                 continue
             m = alive & ~out.dones
-            velocity.append(heading_velocity(out.obs[m], out.labels[m, 0:3]))
+            v_now = heading_velocity(out.obs[m], out.labels[m, 0:3])
+            velocity.append(v_now)
+            error.append((v_now - command).norm(dim=1))
+            velocity_sum[m] += v_now
+            counted[m] += 1
             upright.append(out.obs[m, 4] > UPRIGHT_PITCH)
             head.append(out.head_contact[m].bool())
             front.append(out.labels[m, 3:5] > 0.5)
         env.close()
     v = torch.cat(velocity)
+    measured = counted > 0
+    env_mean = velocity_sum[measured] / counted[measured].unsqueeze(1)
     return (
         f"vx {vx:+.2f}: forward {v[:, 0].mean():+.3f} m/s, left {v[:, 1].mean():+.3f} m/s, "
-        f"|v| {v.norm(dim=1).mean():.3f} m/s, upright {torch.cat(upright).float().mean():.2f}, "
+        f"|v| {v.norm(dim=1).mean():.3f} m/s, error {torch.cat(error).mean():.3f} m/s "
+        f"(of the envs' mean velocity {(env_mean - command).norm(dim=1).mean():.3f}), "
+        f"upright {torch.cat(upright).float().mean():.2f}, "
         f"head down {torch.cat(head).float().mean():.2f}, front feet down "
         + "/".join(f"{x:.2f}" for x in torch.cat(front).float().mean(0).tolist())
         + f", alive {int(alive.sum())}/{envs}"
