@@ -178,7 +178,7 @@ def model_card(
         recipe = (
             "The commands that trained it, in order (each later stage starts from the one "
             "before's checkpoint: with `--init-from`, or with `--resume` where the run went on "
-            "with other task overrides):"
+            "with other task overrides or PPO settings):"
         )
     else:  # checkpoints written before the runner kept its stages
         recipe = "The preset's command (this checkpoint does not record its stages):"
