@@ -1,7 +1,7 @@
 """Does a checkpoint's biped walk where it is told to? Forward speed under fixed commands.
 
 Every env is in biped mode for the whole episode (no mode switch), with one fixed command
-(vx, 0, 0) per run, no observation noise, no random episode start. After a settling time the
+(vx, vy, wz) per run, no observation noise, no random episode start. After a settling time the
 probe measures, over the surviving envs, the base velocity in the heading frame (the frame the
 commands and the tracking reward use: x along the horizontal projection of the body's x axis
 plus its z axis, so the back's direction when standing on the front legs), the share of steps
@@ -30,14 +30,14 @@ from unigait.server_process import LocalServer
 UPRIGHT_PITCH = 1.4
 
 
-def overrides(vx: float) -> str:
+def overrides(vx: float, vy: float, wz: float) -> str:
     """Biped mode only, one command for the whole episode, noise-free observations."""
     return (
         "[modes]\nbiped_probability = 1.0\nresampling_time_s = 60.0\n"
         "[env]\nrandom_initial_episode_step = false\n"
         "[noise]\nenabled = false\n"
         f"[commands]\nresampling_time_s = 60.0\nzero_below = 0.0\n"
-        f"biped = {{ vx = [{vx}, {vx}], vy = [0.0, 0.0], wz = [0.0, 0.0] }}\n"
+        f"biped = {{ vx = [{vx}, {vx}], vy = [{vy}, {vy}], wz = [{wz}, {wz}] }}\n"
     )
 
 
@@ -60,16 +60,24 @@ def heading_velocity(obs: torch.Tensor, base_linvel: torch.Tensor) -> torch.Tens
     )
 
 
-def probe(checkpoint: str, vx: float, envs: int, steps: int, settle: int, seed: int) -> str:
+def probe(
+    checkpoint: str,
+    command: tuple[float, float, float],
+    envs: int,
+    steps: int,
+    settle: int,
+    seed: int,
+) -> str:
+    vx, vy, wz = command
     policy, dims = load_policy(checkpoint)
     with LocalServer() as server:
-        config = SessionConfig(num_envs=envs, seed=seed, task_overrides_toml=overrides(vx))
+        config = SessionConfig(num_envs=envs, seed=seed, task_overrides_toml=overrides(vx, vy, wz))
         env = TorchVecEnv(open_session(server.address, config), "cpu")
         history = ObservationHistory(envs, 3, dims["obs_dim"], torch.device("cpu"))
         history.reset(env.last.obs)
         alive = torch.ones(envs, dtype=torch.bool)
         velocity, upright, head, front, error = [], [], [], [], []
-        command = torch.tensor([vx, 0.0])
+        target = torch.tensor([vx, vy])
         velocity_sum = torch.zeros(envs, 2)
         counted = torch.zeros(envs)
         for t in range(steps):
@@ -83,7 +91,7 @@ def probe(checkpoint: str, vx: float, envs: int, steps: int, settle: int, seed: 
             m = alive & ~out.dones
             v_now = heading_velocity(out.obs[m], out.labels[m, 0:3])
             velocity.append(v_now)
-            error.append((v_now - command).norm(dim=1))
+            error.append((v_now - target).norm(dim=1))
             velocity_sum[m] += v_now
             counted[m] += 1
             upright.append(out.obs[m, 4] > UPRIGHT_PITCH)
@@ -94,9 +102,10 @@ def probe(checkpoint: str, vx: float, envs: int, steps: int, settle: int, seed: 
     measured = counted > 0
     env_mean = velocity_sum[measured] / counted[measured].unsqueeze(1)
     return (
-        f"vx {vx:+.2f}: forward {v[:, 0].mean():+.3f} m/s, left {v[:, 1].mean():+.3f} m/s, "
+        f"vx {vx:+.2f} vy {vy:+.2f} wz {wz:+.2f}: "
+        f"forward {v[:, 0].mean():+.3f} m/s, left {v[:, 1].mean():+.3f} m/s, "
         f"|v| {v.norm(dim=1).mean():.3f} m/s, error {torch.cat(error).mean():.3f} m/s "
-        f"(of the envs' mean velocity {(env_mean - command).norm(dim=1).mean():.3f}), "
+        f"(of the envs' mean velocity {(env_mean - target).norm(dim=1).mean():.3f}), "
         f"upright {torch.cat(upright).float().mean():.2f}, "
         f"head down {torch.cat(head).float().mean():.2f}, front feet down "
         + "/".join(f"{x:.2f}" for x in torch.cat(front).float().mean(0).tolist())
@@ -108,13 +117,15 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     p.add_argument("checkpoint", help="model_*.pt")
     p.add_argument("--vx", type=float, nargs="+", default=[-0.4, 0.0, 0.4])
+    p.add_argument("--vy", type=float, default=0.0, help="lateral command of every run")
+    p.add_argument("--wz", type=float, default=0.0, help="yaw-rate command of every run")
     p.add_argument("--envs", type=int, default=32)
     p.add_argument("--steps", type=int, default=400, help="policy steps (50 per second)")
     p.add_argument("--settle", type=int, default=150, help="steps before measuring")
     p.add_argument("--seed", type=int, default=5)
     a = p.parse_args()
     for vx in a.vx:
-        print(probe(a.checkpoint, vx, a.envs, a.steps, a.settle, a.seed), flush=True)
+        print(probe(a.checkpoint, (vx, a.vy, a.wz), a.envs, a.steps, a.settle, a.seed), flush=True)
 
 
 if __name__ == "__main__":
