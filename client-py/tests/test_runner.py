@@ -108,9 +108,16 @@ def test_runner_trains_logs_checkpoints_and_resumes(tmp_path, capsys):
     with_biped = model_card(
         "u", "unified_flat", staged.state_dict(), {"tracking_biped": biped_eval}, [], "a", 1, 8
     )
-    assert "mean pitch 0.50 rad (upright above 1.4), head on the ground 75% of the time" in (
+    assert "mean pitch 0.50 rad (upright above 1.4), head on the ground 75% of the time." in (
         with_biped
     )
+    assert "along the heading" not in with_biped  # an older server: no split, no sentence
+    biped_eval["tracking/biped/lin_vel_error_forward_mps"] = 0.125
+    biped_eval["tracking/biped/lin_vel_error_lateral_mps"] = 0.25
+    split = model_card(
+        "u", "unified_flat", staged.state_dict(), {"tracking_biped": biped_eval}, [], "a", 1, 8
+    )
+    assert "of the time. Its velocity error along the heading 0.125 m/s, across it 0.250" in split
     assert f"```sh\n{first}\n{second}\npython -m unigait ship" in card
     assert "- networks: actor [32, 16], critic [32, 16], estimator [16], elu: NOT Table III" in card
     assert staged.iteration == 0 and staged.ppo.learning_rate == 2.5e-5

@@ -167,12 +167,20 @@ def model_card(
     biped = evals.get("tracking_biped", {})
     if "tracking/biped/mean_pitch_rad" in biped:
         # Progress the milestone table does not show until the robot is upright.
-        lines += [
-            "",
+        line = (
             f"Biped mode (`tracking_biped`): mean pitch "
             f"{biped['tracking/biped/mean_pitch_rad']:.2f} rad (upright above 1.4), head on "
-            f"the ground {biped.get('head_contact_share', float('nan')):.0%} of the time.",
-        ]
+            f"the ground {biped.get('head_contact_share', float('nan')):.0%} of the time."
+        )
+        if "tracking/biped/lin_vel_error_lateral_mps" in biped:
+            # Which way the biped misses its command: a gait that walks only forward and back
+            # leaves the whole lateral command as error.
+            line += (
+                " Its velocity error along the heading "
+                f"{biped['tracking/biped/lin_vel_error_forward_mps']:.3f} m/s, across it "
+                f"{biped['tracking/biped/lin_vel_error_lateral_mps']:.3f} m/s."
+            )
+        lines += ["", line]
     stages = [str(s) for s in checkpoint.get("stages", [])]
     if stages:
         recipe = (

@@ -228,6 +228,14 @@ pub fn evaluate_scenario(
                 stats.lin_vel_error_mps,
             );
             m.insert(
+                format!("{prefix}/lin_vel_error_forward_mps"),
+                stats.forward_error_mps,
+            );
+            m.insert(
+                format!("{prefix}/lin_vel_error_lateral_mps"),
+                stats.lateral_error_mps,
+            );
+            m.insert(
                 format!("{prefix}/ang_vel_error_radps"),
                 stats.ang_vel_error_radps,
             );
@@ -237,7 +245,8 @@ pub fn evaluate_scenario(
     }
     report.notes.push(format!(
         "tracking error: heading-frame velocity, steps at least {} s after a reset or mode \
-         change; biped steps only when upright (pitch > {UPRIGHT_PITCH} rad)",
+         change; biped steps only when upright (pitch > {UPRIGHT_PITCH} rad); \
+         lin_vel_error_forward_mps / _lateral_mps: the same along and across the heading",
         crate::metrics::TRACKING_SETTLE_S
     ));
     report.wall_s = t0.elapsed().as_secs_f64();

@@ -127,6 +127,8 @@ pub struct TrackingAccumulator {
     samples: u64,
     lin: f64,
     lin_sq: f64,
+    forward: f64,
+    lateral: f64,
     ang: f64,
 }
 
@@ -139,6 +141,11 @@ pub struct TrackingStats {
     pub lin_vel_error_mps: f64,
     /// Root mean square of the same (m/s).
     pub lin_vel_rmse_mps: f64,
+    /// Mean |v*_x - v_x|, along the heading (m/s): how well the walk follows forward commands.
+    pub forward_error_mps: f64,
+    /// Mean |v*_y - v_y|, across the heading (m/s): a gait that only walks forward and back
+    /// shows up here, however well it does that.
+    pub lateral_error_mps: f64,
     /// Mean |w*_z - w_z| (rad/s).
     pub ang_vel_error_radps: f64,
 }
@@ -151,6 +158,8 @@ impl TrackingAccumulator {
         self.samples += 1;
         self.lin += e;
         self.lin_sq += e * e;
+        self.forward += f64::from(dx.abs());
+        self.lateral += f64::from(dy.abs());
         self.ang += f64::from((command[2] - yaw_rate).abs());
     }
 
@@ -159,6 +168,8 @@ impl TrackingAccumulator {
         self.samples += other.samples;
         self.lin += other.lin;
         self.lin_sq += other.lin_sq;
+        self.forward += other.forward;
+        self.lateral += other.lateral;
         self.ang += other.ang;
     }
 
@@ -170,6 +181,8 @@ impl TrackingAccumulator {
                 samples: self.samples,
                 lin_vel_error_mps: self.lin / n,
                 lin_vel_rmse_mps: (self.lin_sq / n).sqrt(),
+                forward_error_mps: self.forward / n,
+                lateral_error_mps: self.lateral / n,
                 ang_vel_error_radps: self.ang / n,
             }
         })
@@ -325,6 +338,15 @@ mod test {
         assert!((s.lin_vel_error_mps - 0.5).abs() < 1e-12);
         assert!((s.lin_vel_rmse_mps - 0.5f64.sqrt()).abs() < 1e-12);
         assert!((s.ang_vel_error_radps - 0.5).abs() < 1e-12);
+        // A (0.3, -0.4) miss is 0.5 in all: 0.3 along the heading and 0.4 across it.
+        let mut other = TrackingAccumulator::default();
+        other.add([0.3, 0.0, 0.0], [0.0, 0.4], 0.0);
+        t.merge(&other);
+        let s = t.stats().unwrap();
+        assert_eq!(s.samples, 3);
+        assert!((s.lin_vel_error_mps - 0.5).abs() < 1e-6);
+        assert!((s.forward_error_mps - 1.3 / 3.0).abs() < 1e-6);
+        assert!((s.lateral_error_mps - 0.4 / 3.0).abs() < 1e-6);
         assert_eq!(TrackingAccumulator::default().stats(), None);
         assert_eq!(rate(0, 0), None);
         assert_eq!(median(&[3.0, 1.0, 2.0]), Some(2.0));

@@ -324,6 +324,19 @@ fn onnx_test_policy_runs_end_to_end() {
     }
     let rate = report.metrics["tracking/quad/termination_rate"];
     assert!((0.0..=1.0).contains(&rate), "termination rate {rate}");
+    // The error's parts along and across the heading bound it: max(|dx|, |dy|) <= |d| <= |dx| + |dy|.
+    let m = |name: &str| report.metrics[&format!("tracking/quad/{name}")];
+    let (all, forward, lateral) = (
+        m("lin_vel_error_mps"),
+        m("lin_vel_error_forward_mps"),
+        m("lin_vel_error_lateral_mps"),
+    );
+    assert!(forward > 0.0 && lateral > 0.0, "{forward} {lateral}");
+    assert!(
+        forward.max(lateral) <= all + 1e-9,
+        "{forward} {lateral} {all}"
+    );
+    assert!(all <= forward + lateral + 1e-9, "{forward} {lateral} {all}");
     let json: serde_json::Value = serde_json::from_str(&report.to_json()).expect("valid JSON");
     assert_eq!(json["scenario"], "tracking_quad");
     assert_eq!(json["policy"], "unified");
