@@ -200,7 +200,7 @@ class FakeSimulator(pb_grpc.SimulatorServicer):
     def __init__(self) -> None:
         self.sims: dict[str, FakeSim] = {}
         #: (scenario, seed) of each Evaluate request, in order.
-        self.evaluated: list[tuple[str, int]] = []
+        self.evaluated: list[tuple[str, int, int]] = []  # scenario, seed, envs
 
     def _sim(self, session_id: str, context: grpc.ServicerContext) -> FakeSim:
         if session_id not in self.sims:
@@ -248,7 +248,7 @@ class FakeSimulator(pb_grpc.SimulatorServicer):
     def Evaluate(self, request: object, context: grpc.ServicerContext) -> object:
         if not request.policy_onnx:
             context.abort(grpc.StatusCode.INVALID_ARGUMENT, "policy_onnx is empty")
-        self.evaluated.append((request.scenario, request.seed))
+        self.evaluated.append((request.scenario, request.seed, request.num_envs))
         metrics = {"policy_bytes": float(len(request.policy_onnx)), "num_envs": request.num_envs}
         return pb.EvaluateResponse(
             metrics=metrics,

@@ -49,13 +49,16 @@ def test_ship_chooses_on_the_validation_seed_and_reports_on_the_evaluation_seed(
     ship = ["ship", "--server", address, "--run-dir", str(run), "--preset", "unified_flat"]
     ship += ["--name", "u", "--out-root", str(tmp_path / "policies"), "--num-envs", "4"]
     servicer.evaluated.clear()
-    assert main([*ship, "--select-last", "2", "--select-seed", "7", "--eval-seed", "1000"]) == 0
+    select = ["--select-last", "2", "--select-seed", "7", "--select-envs", "12"]
+    assert main([*ship, *select, "--eval-seed", "1000"]) == 0
     scenarios = list(MILESTONE_SCENARIOS["unified_flat"])
-    # Iterations 2 and 3 on seed 7, then the chosen one on seed 1000.
-    assert servicer.evaluated == [(s, 7) for s in scenarios] * 2 + [(s, 1000) for s in scenarios]
+    # Iterations 2 and 3 on seed 7 with 12 envs, then the chosen one on seed 1000 with 4.
+    assert servicer.evaluated == [(s, 7, 12) for s in scenarios] * 2 + [
+        (s, 1000, 4) for s in scenarios
+    ]
     card = (tmp_path / "policies" / "u" / "MODEL_CARD.md").read_text()
     # The fake server's figures are the same for both: the later checkpoint wins the tie.
-    assert "last 2 checkpoints on validation seed 7" in card
+    assert "last 2 checkpoints on validation seed 7 (12 envs per scenario)" in card
     assert "2: 0/7 (-7.00), 3: 0/7 (-7.00). Iteration 3 ranked first" in card
     capsys.readouterr()
     # The validation seed must not be the evaluation seed, and a given checkpoint is not chosen.

@@ -255,6 +255,7 @@ def _ship(args: argparse.Namespace) -> int:
         )
         return 2
     checkpoint = Path(args.checkpoint) if args.checkpoint else None
+    select_envs = args.select_envs or args.num_envs
     selection = None
     with _servers(args.server or []) as addresses:
         if args.select_last > 0:
@@ -264,10 +265,10 @@ def _ship(args: argparse.Namespace) -> int:
                 addresses[0],
                 args.select_last,
                 args.select_seed,
-                args.num_envs,
+                select_envs,
             )
             checkpoint = ranked[0].path
-            selection = describe(ranked, args.preset, args.select_seed)
+            selection = describe(ranked, args.preset, args.select_seed, select_envs)
             print(selection)
         folder = ship(
             Path(args.run_dir),
@@ -437,6 +438,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="ship the best of the run's last N checkpoints, judged on --select-seed",
     )
     s.add_argument("--select-seed", type=int, default=2000, help="validation seed of --select-last")
+    s.add_argument(
+        "--select-envs",
+        type=int,
+        default=None,
+        help="envs per scenario for --select-last (default: --num-envs); more envs make a "
+        "success rate's noise smaller, so the best-looking candidate is less often a lucky one",
+    )
     s.set_defaults(func=_ship)
 
     c = sub.add_parser("compare-rsl-rl", help="our learner vs rsl_rl's runner, quad on flat")

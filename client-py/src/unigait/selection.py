@@ -93,7 +93,7 @@ def select_checkpoint(
     return sorted(candidates, key=lambda c: (c.met, c.margin, c.iteration), reverse=True)
 
 
-def describe(candidates: Sequence[Candidate], preset: str, seed: int) -> str:
+def describe(candidates: Sequence[Candidate], preset: str, seed: int, num_envs: int) -> str:
     """The model card's paragraph on how the checkpoint was chosen."""
     milestone, checks = MILESTONES.get(preset, ("-", ()))
     chosen = candidates[0]
@@ -102,7 +102,8 @@ def describe(candidates: Sequence[Candidate], preset: str, seed: int) -> str:
         for c in sorted(candidates, key=lambda c: c.iteration)
     )
     return (
-        f"Chosen among the run's last {len(candidates)} checkpoints on validation seed {seed}: "
+        f"Chosen among the run's last {len(candidates)} checkpoints on validation seed {seed} "
+        f"({num_envs} envs per scenario): "
         f"{milestone} criteria met (summed relative margin) by iteration: {scores}. Iteration "
         f"{chosen.iteration} ranked first; the figures above come from the evaluation seed, "
         "which the choice never saw."
