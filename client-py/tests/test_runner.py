@@ -118,6 +118,14 @@ def test_runner_trains_logs_checkpoints_and_resumes(tmp_path, capsys):
         "u", "unified_flat", staged.state_dict(), {"tracking_biped": biped_eval}, [], "a", 1, 8
     )
     assert "of the time. Its velocity error along the heading 0.125 m/s, across it 0.250" in split
+    # The wall time spans the shipped log alone, and the card says which iterations that is.
+    log = [
+        {"iteration": "41", "iteration_time_s": "1800"},
+        {"iteration": "42", "iteration_time_s": "900"},
+    ]
+    logged = model_card("u", "unified_flat", staged.state_dict(), {}, log, "a", 1, 8)
+    assert "training wall time: 0.75 h (iterations 41-42, the shipped log)" in logged
+    assert "training wall time: 0.00 h\n" in card  # no log, no span
     assert f"```sh\n{first}\n{second}\npython -m unigait ship" in card
     assert "- networks: actor [32, 16], critic [32, 16], estimator [16], elu: NOT Table III" in card
     assert staged.iteration == 0 and staged.ppo.learning_rate == 2.5e-5

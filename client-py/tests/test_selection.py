@@ -1,5 +1,7 @@
 """Choosing the checkpoint to ship on a validation seed: the score, the candidates, the CLI."""
 
+import csv
+
 import pytest
 from test_cli import SMALL
 
@@ -60,6 +62,14 @@ def test_ship_chooses_on_the_validation_seed_and_reports_on_the_evaluation_seed(
     # The fake server's figures are the same for both: the later checkpoint wins the tie.
     assert "last 2 checkpoints on validation seed 7 (12 envs per scenario)" in card
     assert "2: 0/7 (-7.00), 3: 0/7 (-7.00). Iteration 3 ranked first" in card
+    # An earlier checkpoint ships with the log up to it, not the run's later rows.
+    assert main([*ship, "--checkpoint", str(run / "model_2.pt")]) == 0
+    folder = tmp_path / "policies" / "u"
+    with (folder / "progress.csv").open() as f:
+        assert [int(float(r["iteration"])) for r in csv.DictReader(f)] == [1, 2]
+    assert (folder / "training.png").stat().st_size > 0
+    assert not (folder / "training_curves.png").exists()
+    assert "(iterations 1-2, the shipped log)" in (folder / "MODEL_CARD.md").read_text()
     capsys.readouterr()
     # The validation seed must not be the evaluation seed, and a given checkpoint is not chosen.
     assert main([*ship, "--select-last", "2", "--select-seed", "1000"]) == 2

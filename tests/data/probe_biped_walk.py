@@ -11,8 +11,9 @@ foot's contact share, e.g.::
     UNIGAIT_SERVER_BIN=target/release/unigait-server \\
         .venv/bin/python tests/data/probe_biped_walk.py assets/policies/unified_flat/model.pt
 
-A walking biped follows the sign and roughly the size of vx; one that stands in place moves at
-a few cm/s whatever it is told. The tracking error |v* - v| (what `unigait eval` averages) is
+A walking biped follows the sign and roughly the size of vx, and turns at wz (the probe
+reports the world yaw rate too); one that stands in place moves at a few cm/s whatever it is
+told. The tracking error |v* - v| (what `unigait eval` averages) is
 split into the error of each env's mean velocity over the measured window (how far off its
 walk is) and what the step-to-step sway adds on top.
 """
@@ -21,13 +22,17 @@ from __future__ import annotations
 
 import argparse
 
+import mujoco
+import numpy as np
 import torch
 from unigait.client import SessionConfig, open_session
 from unigait.env import ObservationHistory, TorchVecEnv
 from unigait.export import load_policy
+from unigait.mujoco.model import DEFAULT_Q, build_model
 from unigait.server_process import LocalServer
 
 UPRIGHT_PITCH = 1.4
+OMEGA_SCALE = 0.25  # o_t's angular velocity scale
 
 
 def overrides(vx: float, vy: float, wz: float) -> str:
@@ -60,6 +65,51 @@ def heading_velocity(obs: torch.Tensor, base_linvel: torch.Tensor) -> torch.Tens
     )
 
 
+def yaw_rate(obs: torch.Tensor) -> torch.Tensor:
+    """[N] world yaw rate (rad/s): the base-frame angular velocity along the base-frame up axis."""
+    pitch = obs[:, 4]
+    gravity = torch.stack([torch.sin(pitch), obs[:, 3], obs[:, 5]], dim=1)
+    up = -gravity / gravity.norm(dim=1, keepdim=True)
+    omega = obs[:, 6:9] / OMEGA_SCALE
+    return (omega * up).sum(1)
+
+
+class FrontLegReach:
+    """How far a front foot moves sideways (heading frame) per radian of its leg's joints.
+
+    The norm of the foot Jacobian's lateral row over the leg's three joints, from MuJoCo's
+    kinematics of our URDF at the measured pose (base tilt from o_t, joint angles from o_t). On
+    four legs at the default pose it is ~0.3 m/rad (the hip abduction swings the leg sideways);
+    standing on the front legs the abduction axis (the base's x axis) points down, and a foot
+    right under its hip has almost no sideways reach: the leg is singular in that direction.
+    """
+
+    def __init__(self) -> None:
+        self.go2 = build_model()
+        self.data = mujoco.MjData(self.go2.model)
+        self.jacp = np.zeros((3, self.go2.model.nv))
+
+    def __call__(self, obs: np.ndarray, heading_axis: tuple[float, float, float]) -> float:
+        """Mean over both front feet, for one env's o_t; ``heading_axis`` in the base frame."""
+        go2, d = self.go2, self.data
+        pitch = float(obs[4])
+        up = -np.array([np.sin(pitch), obs[3], obs[5]], dtype=np.float64)
+        up /= np.linalg.norm(up)
+        forward = np.array(heading_axis, dtype=np.float64)
+        forward -= forward.dot(up) * up
+        forward /= np.linalg.norm(forward)
+        world_from_base = np.stack([forward, np.cross(up, forward), up])  # rows: world axes
+        mujoco.mju_mat2Quat(d.qpos[3:7], world_from_base.reshape(-1))
+        d.qpos[go2.qpos_adr] = DEFAULT_Q + obs[9:21]
+        mujoco.mj_kinematics(go2.model, d)
+        mujoco.mj_comPos(go2.model, d)
+        reach = []
+        for leg in (0, 1):
+            mujoco.mj_jacGeom(go2.model, d, self.jacp, None, int(go2.foot_geoms[leg]))
+            reach.append(np.linalg.norm(self.jacp[1, go2.dof_adr[3 * leg : 3 * leg + 3]]))
+        return float(np.mean(reach))
+
+
 def probe(
     checkpoint: str,
     command: tuple[float, float, float],
@@ -76,7 +126,8 @@ def probe(
         history = ObservationHistory(envs, 3, dims["obs_dim"], torch.device("cpu"))
         history.reset(env.last.obs)
         alive = torch.ones(envs, dtype=torch.bool)
-        velocity, upright, head, front, error = [], [], [], [], []
+        velocity, upright, head, front, error, turn = [], [], [], [], [], []
+        reach_of, reach = FrontLegReach(), []
         target = torch.tensor([vx, vy])
         velocity_sum = torch.zeros(envs, 2)
         counted = torch.zeros(envs)
@@ -92,13 +143,17 @@ def probe(
             v_now = heading_velocity(out.obs[m], out.labels[m, 0:3])
             velocity.append(v_now)
             error.append((v_now - target).norm(dim=1))
+            turn.append(yaw_rate(out.obs[m]))
             velocity_sum[m] += v_now
             counted[m] += 1
             upright.append(out.obs[m, 4] > UPRIGHT_PITCH)
             head.append(out.head_contact[m].bool())
             front.append(out.labels[m, 3:5] > 0.5)
+            if t % 10 == 0:  # a pose every 0.2 s is plenty for a stance's mean
+                reach += [reach_of(o, (1.0, 0.0, 1.0)) for o in out.obs[m].numpy()]
         env.close()
     v = torch.cat(velocity)
+    w = torch.cat(turn)
     measured = counted > 0
     env_mean = velocity_sum[measured] / counted[measured].unsqueeze(1)
     return (
@@ -106,8 +161,10 @@ def probe(
         f"forward {v[:, 0].mean():+.3f} m/s, left {v[:, 1].mean():+.3f} m/s, "
         f"|v| {v.norm(dim=1).mean():.3f} m/s, error {torch.cat(error).mean():.3f} m/s "
         f"(of the envs' mean velocity {(env_mean - target).norm(dim=1).mean():.3f}), "
+        f"yaw rate {w.mean():+.3f} rad/s (error {(w - wz).abs().mean():.3f}), "
         f"upright {torch.cat(upright).float().mean():.2f}, "
-        f"head down {torch.cat(head).float().mean():.2f}, front feet down "
+        f"head down {torch.cat(head).float().mean():.2f}, "
+        f"front feet's sideways reach {np.mean(reach):.3f} m/rad, front feet down "
         + "/".join(f"{x:.2f}" for x in torch.cat(front).float().mean(0).tolist())
         + f", alive {int(alive.sum())}/{envs}"
     )

@@ -111,6 +111,27 @@ def _progress(run_dir: Path) -> list[dict[str, str]]:
         return list(csv.DictReader(f))
 
 
+def _log_until(run_dir: Path, folder: Path, iteration: int) -> list[dict[str, str]]:
+    """The run's log up to the shipped checkpoint's ``iteration``, kept beside the policy.
+
+    Written to ``folder`` as ``progress.csv`` and drawn as ``training.png``: a run goes on after
+    the checkpoint it ships, and its later rows would describe a policy that is not the one
+    shipped.
+    """
+    from unigait.utils.logger import TrainLogger
+
+    rows = [r for r in _progress(run_dir) if int(float(r.get("iteration") or 0)) <= iteration]
+    if not rows:
+        return []
+    with (folder / "progress.csv").open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    TrainLogger(folder, ()).plot()
+    (folder / "training_curves.png").replace(folder / "training.png")
+    return rows
+
+
 def metric_of(evals: dict[str, dict[str, float]], check: Check) -> float | None:
     """The figure ``check`` judges, if the evaluation has it."""
     value = evals.get(check.scenario, {}).get(check.metric)
@@ -137,13 +158,18 @@ def model_card(
     steps = int(checkpoint.get("total_env_steps", 0))
     iterations = int(checkpoint.get("iteration", 0))
     wall_s = sum(float(r.get("iteration_time_s", 0.0) or 0.0) for r in rows)
+    logged = [int(r["iteration"]) for r in rows if r.get("iteration")]
+    # A checkpoint counts iterations and env steps since its lineage's last `--init-from`, and the
+    # shipped log covers the last stage alone: say what each figure spans rather than call it
+    # the whole recipe's cost.
+    wall_span = f" (iterations {min(logged)}-{max(logged)}, the shipped log)" if logged else ""
     milestone, checks = MILESTONES.get(preset, ("-", ()))
     lines = [
         f"# Policy `{name}`",
         "",
         f"- preset: `{preset}` (`python -m unigait train --preset {preset}`)",
-        f"- iterations: {iterations}; env steps: {steps:,}; training wall time: "
-        f"{wall_s / 3600:.2f} h",
+        f"- iterations: {iterations}; env steps: {steps:,} (both counted from the last fresh "
+        f"start or `--init-from`); training wall time: {wall_s / 3600:.2f} h{wall_span}",
         f"- machine: {_machine()}",
         f"- code: git commit `{commit}`",
         f"- networks: {_networks(checkpoint)}",
@@ -277,13 +303,12 @@ def ship(
     folder = out_root / name
     folder.mkdir(parents=True, exist_ok=True)
     shutil.copyfile(source, folder / "model.pt")
-    for src, dst in (
-        ("training_curves.png", "training.png"),
-        ("training.png", "training.png"),
-        ("progress.csv", "progress.csv"),
-    ):
-        if (run_dir / src).exists():
-            shutil.copyfile(run_dir / src, folder / dst)
+    checkpoint = torch.load(source, map_location="cpu", weights_only=False)
+    rows = _log_until(run_dir, folder, int(checkpoint.get("iteration", 0)))
+    if not rows:  # no log to cut: the run's picture as it is, if any
+        for src in ("training_curves.png", "training.png"):
+            if (run_dir / src).exists():
+                shutil.copyfile(run_dir / src, folder / "training.png")
     policy, dims = load_policy(source)
     export_onnx(policy, folder / "policy.onnx", dims["history_length"], dims["obs_dim"])
     diff = export_mismatch(policy, folder / "policy.onnx")
@@ -296,13 +321,12 @@ def ship(
             result = client.evaluate(onnx, scenario, num_envs=num_envs, seed=eval_seed)
             evals[scenario] = dict(sorted(result.metrics.items()))
     (folder / "eval.json").write_text(json.dumps(evals, indent=2) + "\n")
-    checkpoint = torch.load(source, map_location="cpu", weights_only=False)
     card = model_card(
         name,
         preset,
         checkpoint,
         evals,
-        _progress(run_dir),
+        rows,
         _git_commit(Path.cwd()),
         eval_seed,
         num_envs,
