@@ -201,6 +201,8 @@ class FakeSimulator(pb_grpc.SimulatorServicer):
         self.sims: dict[str, FakeSim] = {}
         #: (scenario, seed) of each Evaluate request, in order.
         self.evaluated: list[tuple[str, int, int]] = []  # scenario, seed, envs
+        #: The task overrides of each CreateSession request, in order.
+        self.task_overrides: list[str] = []
 
     def _sim(self, session_id: str, context: grpc.ServicerContext) -> FakeSim:
         if session_id not in self.sims:
@@ -215,6 +217,7 @@ class FakeSimulator(pb_grpc.SimulatorServicer):
         cfg = request.config
         if not 0 < cfg.num_envs <= 64:
             context.abort(grpc.StatusCode.INVALID_ARGUMENT, "num_envs must be in 1..64")
+        self.task_overrides.append(cfg.task_overrides_toml)
         sid = uuid.uuid4().hex
         self.sims[sid] = sim = FakeSim(cfg.num_envs, cfg.seed)
         return pb.CreateSessionResponse(

@@ -2,6 +2,9 @@
 
 import csv
 import json
+import tomllib
+
+from fakes import FAKE_UPRIGHT_PITCH
 
 from unigait.cli import main
 
@@ -44,6 +47,23 @@ def test_train_resume_export_evaluate(fake_server, tmp_path, capsys):
     assert "policy_bytes" in capsys.readouterr().out
     assert json.loads(report.read_text()) == {"scenario": "flat_quad"}
     assert rrd.read_bytes() == b"RRD"
+
+
+def test_a_stage_starts_the_upright_curriculum_where_its_checkpoint_left_it(fake_server, tmp_path):
+    address, servicer = fake_server
+    curriculum = 'env.task_overrides_toml="[rewards.upright_curriculum]\\nenabled = true\\n"'
+    args = ["train", "--server", address, "--num-envs", "6", *SMALL, "--set", curriculum]
+    first = tmp_path / "first"
+    assert main([*args, "--log-dir", str(first), "--iterations", "1"]) == 0
+
+    def start(overrides: str) -> object:
+        return tomllib.loads(overrides)["rewards"]["upright_curriculum"].get("start")
+
+    assert start(servicer.task_overrides[-1]) is None  # a fresh run: the server's default
+    for flag in ("--resume", "--init-from"):
+        stage = ["--log-dir", str(tmp_path / flag.strip("-")), "--iterations", "2"]
+        assert main([*args, *stage, flag, str(first / "model_1.pt")]) == 0
+        assert start(servicer.task_overrides[-1]) == FAKE_UPRIGHT_PITCH, flag
 
 
 def test_server_errors_become_exit_code_2(fake_server, tmp_path, capsys):

@@ -124,8 +124,11 @@ def _train(args: argparse.Namespace) -> int:
 
         toml = cfg.env.task_overrides_toml + "\n" + QUAD_ONLY_TOML
         cfg = replace(cfg, env=replace(cfg.env, task_overrides_toml=toml))
-    if args.resume:
-        checkpoint = torch.load(args.resume, map_location="cpu", weights_only=False)
+    if args.resume or args.init_from:
+        # A stage started from an upright policy (terrain after flat, say) keeps its threshold
+        # too, rather than paying I_up from 1.0 rad again while the curriculum climbs back.
+        source = args.resume or args.init_from
+        checkpoint = torch.load(source, map_location="cpu", weights_only=False)
         cfg = resume_upright_curriculum(cfg, checkpoint)
     torch.manual_seed(cfg.runner.seed)
     if cfg.runner.torch_threads > 0:
