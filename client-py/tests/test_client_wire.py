@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from fakes import FakeSession, FakeSim, proto_spec, to_proto
+from fakes import REWARD_TERMS, FakeSession, FakeSim, proto_spec, to_proto
 
 from unigait.client import ProtocolError, Spec, StepResult
 from unigait.client.proto import pb
@@ -44,7 +44,7 @@ def test_step_result_decoding_and_concat():
     spec = Spec.from_proto(proto_spec(4))
     sim = FakeSim(4)
     r = StepResult.from_proto(to_proto(sim.step(np.zeros((4, 12), np.float32)), 1), spec)
-    assert r.obs.shape == (4, 53) and r.reward_terms.shape == (4, 26)
+    assert r.obs.shape == (4, 53) and r.reward_terms.shape == (4, len(REWARD_TERMS))
     assert r.terminated.dtype == bool and r.final_env_ids.dtype == np.int64
     assert r.final_obs.shape == (len(r.final_env_ids), 53)
     assert r.dones.sum() == len(r.final_env_ids)

@@ -282,6 +282,10 @@ pub struct RewardParams {
     pub foot_clearance_target: f32,
     /// Radius of the terrain sampling around each foot (m). Default 0.02.
     pub foot_clearance_radius: f32,
+    /// Sideways reach per radian of hip abduction (m/rad) at which `biped_sideways_reach` pays
+    /// in full. Default 0.1: a foot about 8 cm ahead of or behind its hip (0.30 on four legs at
+    /// the default pose).
+    pub sideways_reach_target: f32,
     /// Soft joint limits as a share of the URDF range (legged_gym `soft_dof_pos_limit`). Default 0.9.
     pub soft_joint_limit: f32,
     /// Contact force above which a foot counts as touching (N). Default 1.
@@ -352,6 +356,7 @@ impl Default for RewardParams {
             upright_pitch: 1.4,
             foot_clearance_target: 0.08,
             foot_clearance_radius: 0.02,
+            sideways_reach_target: 0.1,
             soft_joint_limit: 0.9,
             contact_threshold: 1.0,
             only_positive: true,

@@ -182,6 +182,12 @@ impl TaskConfig {
             0.0,
             0.5,
         )?;
+        check(
+            "rewards.sideways_reach_target",
+            w.sideways_reach_target,
+            1e-3,
+            1.0,
+        )?;
         check("rewards.soft_joint_limit", w.soft_joint_limit, 0.0, 1.0)?;
         check("rewards.contact_threshold", w.contact_threshold, 0.0, 1e4)?;
         check("noise.level", self.noise.level, 0.0, 100.0)?;

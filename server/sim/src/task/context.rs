@@ -57,6 +57,11 @@ impl TaskContext {
             raised_right: std::array::from_fn(|i| 3 * per_leg + i),
             stance_feet: [0, 1],
             raised_feet: [2, 3],
+            stance_legs: std::array::from_fn(|leg| std::array::from_fn(|i| leg * per_leg + i)),
+            stance_leg_geometry: std::array::from_fn(|leg| {
+                let joint = |i: usize| model.joints[leg * per_leg + i].origin.translation;
+                [joint(1), joint(2), model.feet[leg].offset]
+            }),
         };
         let scale = scales(&OBSERVATION);
         let level = if config.noise.enabled {

@@ -79,6 +79,12 @@ reward_terms! {
     // kneels on its front shins as a third support and never walks; a preset may price that
     // rest (README, "Why the biped did not walk").
     BipedBodyContact => "biped_body_contact", 0.0, Biped;
+    // Not in Table II (weight 0, the paper's task): how far the hip abductions can move the
+    // stance feet sideways, per radian, as a share of `rewards.sideways_reach_target`. Nose
+    // down, the abduction axis points at the ground, and a foot right under its hip cannot be
+    // moved sideways at all, so the biped never learns to step sideways (README, "Why sideways
+    // is the hard direction"); a stance with the feet ahead of or behind the hips can.
+    BipedSidewaysReach => "biped_sideways_reach", 0.0, BipedUpright;
 }
 
 impl RewardTerm {

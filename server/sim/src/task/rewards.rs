@@ -82,6 +82,11 @@ pub struct RewardConstants {
     pub stance_feet: [usize; 2],
     /// Feet raised in the biped stance (rear: RL, RR).
     pub raised_feet: [usize; 2],
+    /// Joint indices (hip, thigh, calf) of the stance legs (front: FL, FR).
+    pub stance_legs: [[usize; 3]; 2],
+    /// Per stance leg: the thigh joint's origin in the hip link, the knee's in the thigh link
+    /// and the foot centre in the calf link (URDF geometry; the thigh and knee axes are y).
+    pub stance_leg_geometry: [[Vec3; 3]; 2],
 }
 
 fn sq_sum(v: impl IntoIterator<Item = f32>) -> f32 {
@@ -229,6 +234,36 @@ pub fn cost_biped_rear_legs(q: &[f32; NUM_JOINTS], left: &[usize; 3], right: &[u
         + (q[left[2]] - q[right[2]]).powi(2)
 }
 
+/// Sideways reach of one leg's foot per radian of its hip abduction (m/rad): the foot's
+/// distance from the abduction axis (the base's x axis) along the base's z axis. Thigh and knee
+/// turn about y; `geometry` is (thigh joint origin, knee origin, foot centre), each in its
+/// parent link.
+pub fn sideways_reach(hip: f32, thigh: f32, knee: f32, geometry: &[Vec3; 3]) -> f32 {
+    let about_y = |angle: f32, v: Vec3| {
+        let (s, c) = angle.sin_cos();
+        Vec3::new(c * v.x + s * v.z, v.y, -s * v.x + c * v.z)
+    };
+    let [thigh_origin, knee_origin, foot] = *geometry;
+    // The foot in the hip link's frame, then turned by the abduction about x.
+    let p = thigh_origin + about_y(thigh, knee_origin + about_y(knee, foot));
+    let (s, c) = hip.sin_cos();
+    (s * p.y + c * p.z).abs()
+}
+
+/// Mean over the stance legs of their sideways reach as a share of `target`, each capped at 1.
+pub fn reward_sideways_reach(
+    q: &[f32; NUM_JOINTS],
+    legs: &[[usize; 3]; 2],
+    geometry: &[[Vec3; 3]; 2],
+    target: f32,
+) -> f32 {
+    let share = |leg: usize| {
+        let [h, t, k] = legs[leg];
+        (sideways_reach(q[h], q[t], q[k], &geometry[leg]) / target).min(1.0)
+    };
+    (share(0) + share(1)) / 2.0
+}
+
 /// 1 when a stance foot touches the ground and no raised foot does.
 pub fn reward_upright_contacts(
     contact: &[bool; NUM_FEET],
@@ -321,6 +356,12 @@ pub fn raw_terms(
                 reward_upright_contacts(&contact, &k.stance_feet, &k.raised_feet)
             }
             RewardTerm::BipedBodyContact => cost_body_contact(x.head_contact, x.penalised_contacts),
+            RewardTerm::BipedSidewaysReach => reward_sideways_reach(
+                &x.q,
+                &k.stance_legs,
+                &k.stance_leg_geometry,
+                r.sideways_reach_target,
+            ),
         };
     }
     v

@@ -314,3 +314,81 @@ fn total_is_clipped_before_termination() {
     );
     close(total, -0.0404);
 }
+
+#[test]
+fn sideways_reach_is_the_foot_distance_from_the_abduction_axis() {
+    // Go2 front-left geometry: thigh joint 9.55 cm out from the hip, thigh and calf 21.3 cm.
+    let leg = [
+        Vec3::new(0.0, 0.0955, 0.0),
+        Vec3::new(0.0, 0.0, -0.213),
+        Vec3::new(0.0, 0.0, -0.213),
+    ];
+    // Straight leg along -z: the foot 0.426 m from the axis.
+    close(sideways_reach(0.0, 0.0, 0.0, &leg), 0.426);
+    // Leg along +x (thigh at -pi/2), where a foot stands in the biped stance relative to its
+    // hip: on the axis, no reach; abducted by 0.2 rad only the thigh's offset gives a lever.
+    close(sideways_reach(0.0, -FRAC_PI_2, 0.0, &leg), 0.0);
+    close(
+        sideways_reach(0.2, -FRAC_PI_2, 0.0, &leg),
+        0.2f32.sin() * 0.0955,
+    );
+    // Knee bent 90 degrees, thigh straight: the foot 0.213 m forward and 0.213 m down.
+    close(sideways_reach(0.0, 0.0, -FRAC_PI_2, &leg), 0.213);
+    // The default four-legged pose (hip 0.1, thigh 0.8, knee -1.5), worked through by hand:
+    // the foot in the hip frame at (-0.015579, 0.0955, -0.311310), then
+    // |sin 0.1 * 0.0955 + cos 0.1 * -0.311310| = 0.300221.
+    close(sideways_reach(0.1, 0.8, -1.5, &leg), 0.300221);
+
+    // The reward: each leg's share of the target, capped at 1, averaged over both.
+    let legs = [[0, 1, 2], [3, 4, 5]];
+    let geometry = [leg, [leg[0] * Vec3::new(1.0, -1.0, 1.0), leg[1], leg[2]]];
+    let mut q = zeros();
+    q[..3].copy_from_slice(&[0.1, 0.8, -1.5]); // FL: 0.30 m/rad, capped at the 0.1 target
+    // FR: thigh along +x, knee folded back: the foot at (0.213, -0.0955, 0.213) in the hip
+    // frame, 0.213 m from the axis, also capped.
+    q[3..6].copy_from_slice(&[0.0, -FRAC_PI_2, -FRAC_PI_2]);
+    close(reward_sideways_reach(&q, &legs, &geometry, 0.1), 1.0);
+    q[3..6].copy_from_slice(&[0.0, -FRAC_PI_2, 0.0]); // FR on the axis: 0
+    close(reward_sideways_reach(&q, &legs, &geometry, 0.1), 0.5);
+    q[..3].copy_from_slice(&[0.0, 0.0, -FRAC_PI_2]); // FL 0.213 against a 0.426 target
+    close(reward_sideways_reach(&q, &legs, &geometry, 0.426), 0.25);
+
+    // Off in the paper's task; where weighted, paid only upright in the biped mode.
+    assert_eq!(RewardTerm::BipedSidewaysReach.default_weight(), 0.0);
+    let mut raw = [0.0; RewardTerm::COUNT];
+    raw[RewardTerm::BipedSidewaysReach as usize] = 0.5;
+    let mut cfg = TaskConfig::default();
+    cfg.rewards.weights.0[RewardTerm::BipedSidewaysReach as usize] = 1.0;
+    let mut terms = [0.0; RewardTerm::COUNT];
+    for (biped, pitch, paid) in [(true, 1.5, 0.5 * 0.02), (true, 1.0, 0.0), (false, 1.5, 0.0)] {
+        weigh_terms(
+            &raw,
+            &fixed_indicators(biped, pitch, &cfg),
+            &cfg,
+            &mut terms,
+        );
+        close(terms[RewardTerm::BipedSidewaysReach as usize], paid);
+    }
+}
+
+#[test]
+fn the_go2s_own_geometry_gives_the_default_pose_its_reach() {
+    let model = crate::robot::RobotModel::go2();
+    let ctx = crate::task::context::TaskContext::new(TaskConfig::default(), &model);
+    let k = &ctx.reward;
+    assert_eq!(k.stance_legs, [[0, 1, 2], [3, 4, 5]]);
+    for (leg, side) in [(0, 1.0), (1, -1.0)] {
+        let g = &k.stance_leg_geometry[leg];
+        let [h, t, c] = k.stance_legs[leg];
+        // The URDF's foot sits 2 mm behind the calf axis: (-0.002, 0, -0.213). Worked as
+        // above, the foot is at (-0.017108, +-0.0955, -0.312598) in the hip frame and both
+        // mirrored legs reach |sin 0.1 * 0.0955 - cos 0.1 * 0.312598| = 0.301503 m/rad.
+        close(g[0].y, side * 0.0955);
+        close(g[1].z, -0.213);
+        close(g[2].x, -0.002);
+        close(
+            sideways_reach(k.default_q[h], k.default_q[t], k.default_q[c], g),
+            0.301503,
+        );
+    }
+}
