@@ -183,8 +183,9 @@ fn biped_terms() {
 #[test]
 fn masks_indicators_and_ablations() {
     let mut cfg = TaskConfig::default();
-    // The one term off by default gets a weight, so every term shows its mask.
+    // The terms off by default get a weight, so every term shows its mask.
     cfg.rewards.weights.0[RewardTerm::BipedBodyContact as usize] = -1.0;
+    cfg.rewards.weights.0[RewardTerm::BipedSidewaysReach as usize] = 1.0;
     let weight = |t: RewardTerm| cfg.rewards.weights.0[t as usize];
     let raw = [1.0; RewardTerm::COUNT];
     let mut terms = [0.0; RewardTerm::COUNT];
