@@ -82,8 +82,8 @@ reward_terms! {
     // Not in Table II (weight 0, the paper's task): how far the hip abductions can move the
     // stance feet sideways, per radian, as a share of `rewards.sideways_reach_target`. Nose
     // down, the abduction axis points at the ground, and a foot right under its hip cannot be
-    // moved sideways at all, so the biped never learns to step sideways (README, "Why sideways
-    // is the hard direction"); a stance with the feet ahead of or behind the hips can.
+    // moved sideways at all; the biped did not learn to step sideways from there (README, "Why
+    // sideways is the hard direction"). A stance with the feet ahead of or behind the hips can.
     BipedSidewaysReach => "biped_sideways_reach", 0.0, BipedUpright;
 }
 
