@@ -46,32 +46,30 @@ def overrides(vx: float, vy: float, wz: float) -> str:
     )
 
 
-def heading_velocity(obs: torch.Tensor, base_linvel: torch.Tensor) -> torch.Tensor:
-    """[N, 2] velocity (forward, left) in the heading frame from o_t and the velocity label.
+def heading_frame(obs: torch.Tensor) -> torch.Tensor:
+    """[N, 3, 3] the world's heading-frame axes (forward, left, up) in the base frame, from o_t.
 
     o_t's orientation part is (gravity y, Euler pitch, gravity z) in the base frame; gravity x
     is sin(pitch). The heading axis is (1, 0, 1) of the base frame made horizontal.
     """
     pitch = obs[:, 4]
     gravity = torch.stack([torch.sin(pitch), obs[:, 3], obs[:, 5]], dim=1)
-    gravity = gravity / gravity.norm(dim=1, keepdim=True)
-    forward = torch.tensor([1.0, 0.0, 1.0]).expand_as(gravity)
-    forward = forward - (forward * gravity).sum(1, keepdim=True) * gravity
-    forward = forward / forward.norm(dim=1, keepdim=True)
-    left = torch.cross(-gravity, forward, dim=1)
-    return torch.stack(
-        [(base_linvel * forward).sum(1), (base_linvel * left).sum(1)],
-        dim=1,
-    )
-
-
-def yaw_rate(obs: torch.Tensor) -> torch.Tensor:
-    """[N] world yaw rate (rad/s): the base-frame angular velocity along the base-frame up axis."""
-    pitch = obs[:, 4]
-    gravity = torch.stack([torch.sin(pitch), obs[:, 3], obs[:, 5]], dim=1)
     up = -gravity / gravity.norm(dim=1, keepdim=True)
-    omega = obs[:, 6:9] / OMEGA_SCALE
-    return (omega * up).sum(1)
+    forward = torch.tensor([1.0, 0.0, 1.0]).expand_as(up)
+    forward = forward - (forward * up).sum(1, keepdim=True) * up
+    forward = forward / forward.norm(dim=1, keepdim=True)
+    left = torch.cross(up, forward, dim=1)
+    return torch.stack([forward, left, up], dim=1)
+
+
+def heading_velocity(frame: torch.Tensor, base_linvel: torch.Tensor) -> torch.Tensor:
+    """[N, 2] velocity (forward, left) in the heading frame from the base-frame velocity label."""
+    return torch.einsum("nij,nj->ni", frame[:, :2], base_linvel)
+
+
+def yaw_rate(frame: torch.Tensor, obs: torch.Tensor) -> torch.Tensor:
+    """[N] world yaw rate (rad/s): the base-frame angular velocity along the up axis."""
+    return (obs[:, 6:9] / OMEGA_SCALE * frame[:, 2]).sum(1)
 
 
 class FrontLegReach:
@@ -89,17 +87,10 @@ class FrontLegReach:
         self.data = mujoco.MjData(self.go2.model)
         self.jacp = np.zeros((3, self.go2.model.nv))
 
-    def __call__(self, obs: np.ndarray, heading_axis: tuple[float, float, float]) -> float:
-        """Mean over both front feet, for one env's o_t; ``heading_axis`` in the base frame."""
+    def __call__(self, obs: np.ndarray, world_from_base: np.ndarray) -> float:
+        """Mean over both front feet, for one env's o_t and :func:`heading_frame` rows."""
         go2, d = self.go2, self.data
-        pitch = float(obs[4])
-        up = -np.array([np.sin(pitch), obs[3], obs[5]], dtype=np.float64)
-        up /= np.linalg.norm(up)
-        forward = np.array(heading_axis, dtype=np.float64)
-        forward -= forward.dot(up) * up
-        forward /= np.linalg.norm(forward)
-        world_from_base = np.stack([forward, np.cross(up, forward), up])  # rows: world axes
-        mujoco.mju_mat2Quat(d.qpos[3:7], world_from_base.reshape(-1))
+        mujoco.mju_mat2Quat(d.qpos[3:7], world_from_base.astype(np.float64).reshape(-1))
         d.qpos[go2.qpos_adr] = DEFAULT_Q + obs[9:21]
         mujoco.mj_kinematics(go2.model, d)
         mujoco.mj_comPos(go2.model, d)
@@ -140,17 +131,19 @@ def probe(
             if t < settle:
                 continue
             m = alive & ~out.dones
-            v_now = heading_velocity(out.obs[m], out.labels[m, 0:3])
+            frame = heading_frame(out.obs[m])
+            v_now = heading_velocity(frame, out.labels[m, 0:3])
             velocity.append(v_now)
             error.append((v_now - target).norm(dim=1))
-            turn.append(yaw_rate(out.obs[m]))
+            turn.append(yaw_rate(frame, out.obs[m]))
             velocity_sum[m] += v_now
             counted[m] += 1
             upright.append(out.obs[m, 4] > UPRIGHT_PITCH)
             head.append(out.head_contact[m].bool())
             front.append(out.labels[m, 3:5] > 0.5)
             if t % 10 == 0:  # a pose every 0.2 s is plenty for a stance's mean
-                reach += [reach_of(o, (1.0, 0.0, 1.0)) for o in out.obs[m].numpy()]
+                poses = zip(out.obs[m].numpy(), frame.numpy(), strict=True)
+                reach += [reach_of(o, f) for o, f in poses]
         env.close()
     v = torch.cat(velocity)
     w = torch.cat(turn)
