@@ -15,7 +15,9 @@ A walking biped follows the sign and roughly the size of vx, and turns at wz (th
 reports the world yaw rate too); one that stands in place moves at a few cm/s whatever it is
 told. The tracking error |v* - v| (what `unigait eval` averages) is
 split into the error of each env's mean velocity over the measured window (how far off its
-walk is) and what the step-to-step sway adds on top.
+walk is) and what the step-to-step sway adds on top. The sway is reported along and across the
+heading, with the frequency where the sideways sway is strongest (a stride's rocking shows at
+the gait's 2.2 Hz), next to the trunk's tilt rate (the term `biped_tilt_rate` prices).
 """
 
 from __future__ import annotations
@@ -72,6 +74,27 @@ def yaw_rate(frame: torch.Tensor, obs: torch.Tensor) -> torch.Tensor:
     return (obs[:, 6:9] / OMEGA_SCALE * frame[:, 2]).sum(1)
 
 
+def tilt_rate(frame: torch.Tensor, obs: torch.Tensor) -> torch.Tensor:
+    """[N] the trunk's angular speed about the two horizontal axes (rad/s), as `biped_tilt_rate`."""
+    omega = obs[:, 6:9] / OMEGA_SCALE
+    return torch.einsum("nij,nj->ni", frame[:, :2], omega).norm(dim=1)
+
+
+class Sway:
+    """Step-to-step sway of the heading-frame velocity: what is left after each env's mean.
+
+    `series` is [T, N, 2] (forward, left) at 50 Hz for the envs alive over the whole window.
+    The strongest frequency tells a stride's rocking (the gait's 2.2 Hz) from slow wandering.
+    """
+
+    def __init__(self, series: torch.Tensor, dt: float = 0.02) -> None:
+        x = (series - series.mean(0)).numpy()
+        self.rms = np.sqrt((x**2).mean(axis=(0, 1))) if x.size else np.zeros(2)
+        power = (np.abs(np.fft.rfft(x, axis=0)) ** 2).sum(1)
+        hz = np.fft.rfftfreq(x.shape[0], dt)
+        self.peak_hz = hz[1:][power[1:].argmax(0)] if x.size else np.zeros(2)
+
+
 class FrontLegReach:
     """How far a front foot moves sideways (heading frame) per radian of its leg's joints.
 
@@ -117,7 +140,8 @@ def probe(
         history = ObservationHistory(envs, 3, dims["obs_dim"], torch.device("cpu"))
         history.reset(env.last.obs)
         alive = torch.ones(envs, dtype=torch.bool)
-        velocity, upright, head, front, error, turn = [], [], [], [], [], []
+        velocity, upright, head, front, error, turn, tilt = [], [], [], [], [], [], []
+        series, kept = [], torch.ones(envs, dtype=torch.bool)  # every env's velocity, for the sway
         reach_of, reach = FrontLegReach(), []
         target = torch.tensor([vx, vy])
         velocity_sum = torch.zeros(envs, 2)
@@ -131,8 +155,11 @@ def probe(
             if t < settle:
                 continue
             m = alive & ~out.dones
+            kept &= m
+            series.append(heading_velocity(heading_frame(out.obs), out.labels[:, 0:3]))
             frame = heading_frame(out.obs[m])
             v_now = heading_velocity(frame, out.labels[m, 0:3])
+            tilt.append(tilt_rate(frame, out.obs[m]))
             velocity.append(v_now)
             error.append((v_now - target).norm(dim=1))
             turn.append(yaw_rate(frame, out.obs[m]))
@@ -147,6 +174,7 @@ def probe(
         env.close()
     v = torch.cat(velocity)
     w = torch.cat(turn)
+    sway = Sway(torch.stack(series)[:, kept])
     measured = counted > 0
     env_mean = velocity_sum[measured] / counted[measured].unsqueeze(1)
     return (
@@ -155,6 +183,9 @@ def probe(
         f"|v| {v.norm(dim=1).mean():.3f} m/s, error {torch.cat(error).mean():.3f} m/s "
         f"(of the envs' mean velocity {(env_mean - target).norm(dim=1).mean():.3f}), "
         f"yaw rate {w.mean():+.3f} rad/s (error {(w - wz).abs().mean():.3f}), "
+        f"sway forward {sway.rms[0]:.3f} / left {sway.rms[1]:.3f} m/s rms "
+        f"(left's strongest at {sway.peak_hz[1]:.1f} Hz), "
+        f"tilt rate {torch.cat(tilt).pow(2).mean().sqrt():.2f} rad/s rms, "
         f"upright {torch.cat(upright).float().mean():.2f}, "
         f"head down {torch.cat(head).float().mean():.2f}, "
         f"front feet's sideways reach {np.mean(reach):.3f} m/rad, front feet down "
