@@ -30,7 +30,6 @@ REWARD_TERMS = [
     "biped_tracking_ang_vel", "biped_base_height", "biped_base_angle", "biped_periodic_gait",
     "biped_foot_clearance", "biped_rear_legs", "biped_upright_contacts", "biped_body_contact",
     "biped_sideways_reach",
-    "biped_tilt_rate",
 ]  # fmt: skip
 
 

@@ -17,7 +17,8 @@ told. The tracking error |v* - v| (what `unigait eval` averages) is
 split into the error of each env's mean velocity over the measured window (how far off its
 walk is) and what the step-to-step sway adds on top. The sway is reported along and across the
 heading, with the frequency where the sideways sway is strongest (a stride's rocking shows at
-the gait's 2.2 Hz), next to the trunk's tilt rate (the term `biped_tilt_rate` prices).
+the gait's 2.2 Hz), next to the trunk's tilt rate: its angular speed about the two horizontal
+axes, which tells a trunk rocking from one that moves as a whole.
 """
 
 from __future__ import annotations
@@ -75,7 +76,7 @@ def yaw_rate(frame: torch.Tensor, obs: torch.Tensor) -> torch.Tensor:
 
 
 def tilt_rate(frame: torch.Tensor, obs: torch.Tensor) -> torch.Tensor:
-    """[N] the trunk's angular speed about the two horizontal axes (rad/s), as `biped_tilt_rate`."""
+    """[N] the trunk's angular speed about the two horizontal axes (rad/s): its rocking."""
     omega = obs[:, 6:9] / OMEGA_SCALE
     return torch.einsum("nij,nj->ni", frame[:, :2], omega).norm(dim=1)
 

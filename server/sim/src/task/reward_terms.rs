@@ -85,13 +85,6 @@ reward_terms! {
     // moved sideways at all; the biped did not learn to step sideways from there (README, "Why
     // sideways is the hard direction"). A stance with the feet ahead of or behind the hips can.
     BipedSidewaysReach => "biped_sideways_reach", 0.0, BipedUpright;
-    // Not in Table II (weight 0, the paper's task): the trunk's tilt rate, its angular velocity
-    // about the two horizontal axes, upright in the biped mode. Table II's angular-velocity term
-    // takes the base frame's x and y, which nose down are the yaw rate and the pitch rate: it
-    // never sees the trunk rocking sideways at the stride frequency, and that rocking, ~0.4 rad/s
-    // at the trunk's height, is most of the biped's velocity error (README, "Where the biped's
-    // velocity error comes from").
-    BipedTiltRate => "biped_tilt_rate", 0.0, BipedUpright;
 }
 
 impl RewardTerm {

@@ -108,12 +108,6 @@ pub fn cost_ang_vel_xy(w: Vec3) -> f32 {
     w.x * w.x + w.y * w.y
 }
 
-/// |w|^2 minus its world-vertical part: the tilt rate about the two horizontal axes, whatever
-/// the trunk's orientation (`yaw_rate` is the angular velocity about world z).
-pub fn cost_tilt_rate(w: Vec3, yaw_rate: f32) -> f32 {
-    (w.length_squared() - yaw_rate * yaw_rate).max(0.0)
-}
-
 /// |qdot|^2.
 pub fn cost_dof_vel(qd: &[f32; NUM_JOINTS]) -> f32 {
     sq_sum(qd.iter().copied())
@@ -362,7 +356,6 @@ pub fn raw_terms(
                 reward_upright_contacts(&contact, &k.stance_feet, &k.raised_feet)
             }
             RewardTerm::BipedBodyContact => cost_body_contact(x.head_contact, x.penalised_contacts),
-            RewardTerm::BipedTiltRate => cost_tilt_rate(x.base_angvel_b, x.yaw_rate),
             RewardTerm::BipedSidewaysReach => reward_sideways_reach(
                 &x.q,
                 &k.stance_legs,

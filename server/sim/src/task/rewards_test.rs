@@ -186,7 +186,6 @@ fn masks_indicators_and_ablations() {
     // The terms off by default get a weight, so every term shows its mask.
     cfg.rewards.weights.0[RewardTerm::BipedBodyContact as usize] = -1.0;
     cfg.rewards.weights.0[RewardTerm::BipedSidewaysReach as usize] = 1.0;
-    cfg.rewards.weights.0[RewardTerm::BipedTiltRate as usize] = -1.0;
     let weight = |t: RewardTerm| cfg.rewards.weights.0[t as usize];
     let raw = [1.0; RewardTerm::COUNT];
     let mut terms = [0.0; RewardTerm::COUNT];
@@ -393,37 +392,4 @@ fn the_go2s_own_geometry_gives_the_default_pose_its_reach() {
             0.301503,
         );
     }
-}
-
-#[test]
-fn tilt_rate_leaves_out_turning_in_either_stance() {
-    // On four legs (level trunk) it is Table II's |w_xy|^2: roll and pitch rates, not the yaw.
-    let level = Vec3::new(0.3, 0.4, 2.0);
-    close(cost_tilt_rate(level, 2.0), 0.25);
-    // Nose down (pitch pi/2) the base's x axis points at the ground: a turn of 2 rad/s is
-    // w_b = (-2, 0, 0), which Table II's term would price at 4 and this one leaves alone.
-    let turning = Vec3::new(-2.0, 0.0, 0.0);
-    close(cost_ang_vel_xy(turning), 4.0);
-    close(cost_tilt_rate(turning, 2.0), 0.0);
-    // Rocking sideways about the heading (the base's z axis nose down) at 0.5 rad/s, while
-    // turning at 1 rad/s: Table II's term sees only the turn, this one only the rocking.
-    let rocking = Vec3::new(-1.0, 0.0, 0.5);
-    close(cost_ang_vel_xy(rocking), 1.0);
-    close(cost_tilt_rate(rocking, 1.0), 0.25);
-    // Weighted: upright biped only, at the config's weight times the policy dt.
-    let mut raw = [0.0; RewardTerm::COUNT];
-    raw[RewardTerm::BipedTiltRate as usize] = cost_tilt_rate(rocking, 1.0);
-    let mut terms = [0.0; RewardTerm::COUNT];
-    let mut cfg = TaskConfig::default();
-    cfg.rewards.only_positive = false;
-    weigh_terms(&raw, &fixed_indicators(true, 1.5, &cfg), &cfg, &mut terms);
-    close(terms[RewardTerm::BipedTiltRate as usize], 0.0);
-    cfg.rewards.weights.0[RewardTerm::BipedTiltRate as usize] = -0.4;
-    weigh_terms(&raw, &fixed_indicators(true, 1.5, &cfg), &cfg, &mut terms);
-    close(
-        terms[RewardTerm::BipedTiltRate as usize],
-        -0.4 * 0.25 * 0.02,
-    );
-    weigh_terms(&raw, &fixed_indicators(false, 0.0, &cfg), &cfg, &mut terms);
-    close(terms[RewardTerm::BipedTiltRate as usize], 0.0);
 }
