@@ -65,20 +65,13 @@ def heading_frame(obs: torch.Tensor) -> torch.Tensor:
     return torch.stack([forward, left, up], dim=1)
 
 
-def heading_velocity(frame: torch.Tensor, base_linvel: torch.Tensor) -> torch.Tensor:
-    """[N, 2] velocity (forward, left) in the heading frame from the base-frame velocity label."""
-    return torch.einsum("nij,nj->ni", frame[:, :2], base_linvel)
+def in_heading_frame(frame: torch.Tensor, base_vector: torch.Tensor) -> torch.Tensor:
+    """[N, 3] a base-frame vector's (forward, left, up) components in the heading frame.
 
-
-def yaw_rate(frame: torch.Tensor, obs: torch.Tensor) -> torch.Tensor:
-    """[N] world yaw rate (rad/s): the base-frame angular velocity along the up axis."""
-    return (obs[:, 6:9] / OMEGA_SCALE * frame[:, 2]).sum(1)
-
-
-def tilt_rate(frame: torch.Tensor, obs: torch.Tensor) -> torch.Tensor:
-    """[N] the trunk's angular speed about the two horizontal axes (rad/s): its rocking."""
-    omega = obs[:, 6:9] / OMEGA_SCALE
-    return torch.einsum("nij,nj->ni", frame[:, :2], omega).norm(dim=1)
+    For the velocity label: the velocity the commands are given in. For o_t's angular velocity:
+    the world yaw rate (up) and the trunk's tilt rate (forward and left: its rocking).
+    """
+    return torch.einsum("nij,nj->ni", frame, base_vector)
 
 
 class Sway:
@@ -90,10 +83,11 @@ class Sway:
 
     def __init__(self, series: torch.Tensor, dt: float = 0.02) -> None:
         x = (series - series.mean(0)).numpy()
-        self.rms = np.sqrt((x**2).mean(axis=(0, 1))) if x.size else np.zeros(2)
-        power = (np.abs(np.fft.rfft(x, axis=0)) ** 2).sum(1)
-        hz = np.fft.rfftfreq(x.shape[0], dt)
-        self.peak_hz = hz[1:][power[1:].argmax(0)] if x.size else np.zeros(2)
+        self.rms, self.peak_hz = np.zeros(2), np.zeros(2)
+        if x.size:  # no env alive over the whole window: nothing to report
+            self.rms = np.sqrt((x**2).mean(axis=(0, 1)))
+            power = (np.abs(np.fft.rfft(x, axis=0)) ** 2).sum(1)
+            self.peak_hz = np.fft.rfftfreq(x.shape[0], dt)[1:][power[1:].argmax(0)]
 
 
 class FrontLegReach:
@@ -157,13 +151,15 @@ def probe(
                 continue
             m = alive & ~out.dones
             kept &= m
-            series.append(heading_velocity(heading_frame(out.obs), out.labels[:, 0:3]))
-            frame = heading_frame(out.obs[m])
-            v_now = heading_velocity(frame, out.labels[m, 0:3])
-            tilt.append(tilt_rate(frame, out.obs[m]))
+            frame = heading_frame(out.obs)
+            v_all = in_heading_frame(frame, out.labels[:, 0:3])[:, :2]
+            series.append(v_all)
+            frame, v_now = frame[m], v_all[m]
+            omega = in_heading_frame(frame, out.obs[m, 6:9] / OMEGA_SCALE)
+            tilt.append(omega[:, :2].norm(dim=1))
             velocity.append(v_now)
             error.append((v_now - target).norm(dim=1))
-            turn.append(yaw_rate(frame, out.obs[m]))
+            turn.append(omega[:, 2])
             velocity_sum[m] += v_now
             counted[m] += 1
             upright.append(out.obs[m, 4] > UPRIGHT_PITCH)
