@@ -57,6 +57,12 @@ def test_runner_trains_logs_checkpoints_and_resumes(tmp_path, capsys):
     again.learn(1)
     with (tmp_path / "progress.csv").open() as f:
         assert [r["iteration"] for r in csv.DictReader(f)] == ["1", "2", "3"]
+    # A fixed schedule resumes at the configured rate, not the checkpoint's.
+    fixed_cfg = load_config(None, [*SMALL, "ppo.schedule=fixed", "ppo.learning_rate=3e-6"])
+    fixed = OnPolicyRunner(TorchVecEnv(FakeSession(8)), fixed_cfg, tmp_path / "fixed")
+    fixed.load(tmp_path / "model_2.pt")
+    assert runner.ppo.learning_rate != 3e-6 and fixed.ppo.learning_rate == 3e-6
+    assert all(g["lr"] == 3e-6 for g in fixed.ppo.optimizer.param_groups)
 
     # Staged training: networks and the adaptive learning rate, not the counters or optimiser;
     # the stage commands travel with the networks, and a resume adds none.

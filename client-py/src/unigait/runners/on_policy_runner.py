@@ -335,14 +335,19 @@ class OnPolicyRunner:
             self.ppo._set_lr(float(state["learning_rate"]))
 
     def load(self, path: str | Path) -> None:
-        """Restore networks, optimisers, learning rate and counters from a checkpoint."""
+        """Restore networks, optimisers, counters and (adaptive schedule) the learning rate."""
         state = torch.load(path, map_location=self.device, weights_only=False)
         self._check_networks(path, state)
         self.actor_critic.load_state_dict(state["actor_critic"])
         self.estimator.load_state_dict(state["estimator"])
         self.ppo.optimizer.load_state_dict(state["optimizer"])
         self.estimator_learning.optimizer.load_state_dict(state["estimator_optimizer"])
-        self.ppo._set_lr(float(state["learning_rate"]))
+        # An adaptive schedule carries on from the checkpoint's rate; a fixed one is the rate the
+        # user configured (how one settles a run at a rate below the adaptive rule's floor).
+        if self.cfg.ppo.schedule == "adaptive":
+            self.ppo._set_lr(float(state["learning_rate"]))
+        else:
+            self.ppo._set_lr(self.cfg.ppo.learning_rate)
         self.iteration = int(state["iteration"])
         self.total_env_steps = int(state.get("total_env_steps", 0))
         self.stages = list(state.get("stages", []))
