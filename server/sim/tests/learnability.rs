@@ -238,6 +238,43 @@ fn head_contact_extra_iterations_follow_their_switch() {
     }
 }
 
+/// A robot that lands on its legs within a policy step gets the extra solver iterations from
+/// the next physics step on, not only at the next read-back: a hip's or thigh's first touch
+/// taken without them left the worst joint gaps (5.5-6.7 mm, over the 5 mm bound).
+#[test]
+fn a_first_leg_touch_gets_extra_iterations_at_the_next_physics_step() {
+    let model = RobotModel::go2();
+    let q = default_q(&model);
+    let params = PhysicsParams::default();
+    let mut world = RobotWorld::new(&model, 1, Terrain::Flat.collider(), &params);
+    // On its side, the lowest collider 2 cm above the ground: it falls for about 13 steps.
+    let base = pose_with_lowest_point(&model, Rotation::from_rotation_x(FRAC_PI_2), &q, 0.02);
+    world.set_robot_state(&model, 0, base, Vec3::ZERO, Vec3::ZERO, &q);
+    let actuators = [RobotPhysicalParams::nominal(&model).actuator];
+    let mut torques = [0.0; NUM_JOINTS];
+    let mut first_extra = None;
+    for step in 0..40 {
+        world.step(&model, &q, &actuators, &mut torques);
+        if world.has_extra_iterations(0) {
+            first_extra = Some(step);
+            break;
+        }
+    }
+    let step = first_extra.expect("no extra iterations within 40 physics steps");
+    assert!(
+        step >= 5,
+        "extra iterations before the fall could touch: step {step}"
+    );
+    let mut states = [RobotState::default()];
+    world.read_states(&model, &mut states);
+    let s = states[0];
+    assert!(
+        s.penalised_contacts + s.other_contacts > 0,
+        "extra iterations without a leg on the ground: {s:?}"
+    );
+    assert!(s.extra_iterations);
+}
+
 /// The trunk still terminates: a robot tipped back (pitch -0.3) with its legs folded up,
 /// dropped onto its rear trunk edge, ends its episode.
 #[test]
