@@ -357,7 +357,7 @@ impl RobotWorld {
         }
         self.update_leg_contact();
         for slot in 0..self.robots.len() {
-            self.set_extra_iterations(slot, self.leg_contact[slot] || self.near_stop[slot]);
+            self.update_extra_iterations(slot);
         }
     }
 
@@ -414,8 +414,10 @@ impl RobotWorld {
         self.extra_iterations[slot]
     }
 
-    /// Give robot `slot` the extra solver iterations, or take them back.
-    fn set_extra_iterations(&mut self, slot: usize, hard: bool) {
+    /// Give robot `slot` the extra solver iterations if it lies on legs or head or has a joint
+    /// near a stop, or take them back.
+    fn update_extra_iterations(&mut self, slot: usize) {
+        let hard = self.leg_contact[slot] || self.near_stop[slot];
         if self.extra_iterations[slot] == hard {
             return;
         }
@@ -495,9 +497,8 @@ impl RobotWorld {
                     || s.q[j].max(ahead) > joint.sim_upper - reach
             });
             self.near_stop[slot] = at_limit;
-            let hard = self.leg_contact[slot] || at_limit;
-            s.extra_iterations = hard;
-            self.set_extra_iterations(slot, hard);
+            self.update_extra_iterations(slot);
+            s.extra_iterations = self.extra_iterations[slot];
         }
     }
 
