@@ -1,4 +1,6 @@
-"""Build step: generate the gRPC stubs from ../proto (the single source of the wire format).
+"""Build step: the gRPC stubs from ../proto, and the recipes and milestones from ../assets.
+
+The proto is the single source of the wire format; assets/ the single home of the data files.
 
 The generated modules land in ``src/unigait/_proto/v1/`` (git-ignored) before the normal
 ``build_py`` copies the package, so both ``pip install ./client-py`` and editable installs see them.
@@ -17,6 +19,9 @@ from setuptools import setup
 from setuptools.command.build_py import build_py
 
 HERE = Path(__file__).resolve().parent
+#: The project's data files the package carries (recipes, milestones): their home is assets/.
+ASSETS = ("recipes", "milestones.toml")
+ASSETS_DIR = HERE / "src" / "unigait" / "_assets"
 PROTO_FILE = Path("unigait/v1/unigait.proto")
 OUT_DIR = HERE / "src" / "unigait" / "_proto" / "v1"
 
@@ -68,15 +73,39 @@ def generate_stubs() -> None:
     shutil.rmtree(HERE / "build" / "lib" / "unigait" / "_proto", ignore_errors=True)
 
 
+def link_assets() -> None:
+    """Link ../assets/{recipes,milestones.toml} into src/unigait/_assets/ (git-ignored).
+
+    A link, not a copy: an editable install then reads the repository's files as they change,
+    and a wheel's build copies what the link points at.
+    """
+    ASSETS_DIR.mkdir(parents=True, exist_ok=True)
+    (ASSETS_DIR / "__init__.py").write_text('"""Linked from ../assets at build time."""\n')
+    for name in ASSETS:
+        source = HERE.parent / "assets" / name
+        link = ASSETS_DIR / name
+        if not source.exists():
+            if link.exists():
+                continue  # building from an sdist that already carries them
+            raise RuntimeError(f"unigait: {source} not found")
+        if link.is_symlink() or link.is_file():
+            link.unlink()
+        elif link.is_dir():
+            shutil.rmtree(link)
+        link.symlink_to(os.path.relpath(source, ASSETS_DIR))
+
+
 class BuildPyWithStubs(build_py):
     """``build_py`` that generates the stubs first."""
 
     def run(self) -> None:
         """Generate the stubs, then build as usual."""
         generate_stubs()
+        link_assets()
         super().run()
 
 
 # Generate before setup() so that package discovery already sees unigait._proto.
 generate_stubs()
+link_assets()
 setup(cmdclass={"build_py": BuildPyWithStubs})

@@ -30,9 +30,10 @@ for scenario in transition_quad_to_biped transition_biped_to_quad; do
 done
 
 echo "== training: $ITERATIONS iterations x $ENVS envs x 24 steps (PPO + concurrent estimator)"
-"$VENV/bin/python" -m unigait train --iterations "$ITERATIONS" --num-envs "$ENVS" --log-dir "$OUT" --quiet
+"$VENV/bin/python" -m unigait train --iterations "$ITERATIONS" --num-envs "$ENVS" \
+  --log-dir "$OUT/training" --overwrite --quiet
 echo "== exporting the fused estimator + actor to ONNX"
-"$VENV/bin/python" -m unigait export --checkpoint "$OUT/model_latest.pt" --out "$OUT/policy.onnx"
+"$VENV/bin/python" -m unigait export --checkpoint "$OUT/training/model_latest.pt" --out "$OUT/policy.onnx"
 echo "== evaluating on the server and recording a rollout"
 "$VENV/bin/python" -m unigait evaluate --policy "$OUT/policy.onnx" --scenario transition_biped_to_quad \
   --num-envs 16 --report "$OUT/eval.json" --record "$OUT/rollout.rrd"
@@ -41,6 +42,7 @@ echo
 echo "Shipped policy: $OUT/shipped_quad_flat_eval.json, $OUT/shipped_quad_flat.rrd"
 echo "Shipped unified policy: $OUT/shipped_unified_flat_transition_*.json and .rrd"
 echo "  (pictures: scripts/render_recording.py, see README)"
-echo "Training curves: $OUT/training.png (scalars in $OUT/*.csv); evaluation: $OUT/eval.json"
+echo "Training curves: $OUT/training/training_curves.png (scalars in $OUT/training/progress.csv)"
+echo "Evaluation: $OUT/eval.json"
 echo "Open the rollout with the rerun viewer (rerun-sdk 0.36, installed in the venv):"
 echo "  $VENV/bin/rerun $OUT/rollout.rrd"

@@ -1,5 +1,6 @@
 """The Python client against the real server: round trip, spec, autoreset, errors, sharding."""
 
+import dataclasses
 import time
 from pathlib import Path
 
@@ -227,20 +228,26 @@ def test_local_server_ends_with_the_process_that_started_it(server_bin, tmp_path
         parent.kill()
 
 
-def test_every_presets_task_overrides_are_a_valid_task_config(server):
-    """A preset's task fragment is only checked by the server: each must open a session, and
-    the unified presets' priced head rest must reach the effective config."""
+def test_every_recipe_stage_task_is_a_valid_task_config(server):
+    """A recipe's task table is only checked by the server: every stage of every recipe that
+    runs at this commit must open a session, and its weights must reach the effective config."""
     import tomllib
 
-    from unigait import presets
-    from unigait.config import load_config
+    from unigait.config import session_config
+    from unigait.recipes import load_recipe, recipe_names
 
+    checked = 0
     with Client(server) as client:
-        for name in presets.names():
-            fragment = load_config(None, presets.overrides_of(name)).env.task_overrides_toml
-            with client.create_session(
-                SessionConfig(num_envs=1, task_overrides_toml=fragment)
-            ) as s:
-                weights = tomllib.loads(s.spec.task_config_toml)["rewards"]["weights"]
-            expected = -3.0 if name.startswith("unified") else 0.0
-            assert weights["biped_body_contact"] == expected, name
+        for name in recipe_names():
+            recipe = load_recipe(name)
+            for stage in recipe.stages:
+                if not stage.runs_at_head:
+                    continue
+                cfg = dataclasses.replace(session_config(stage.config), num_envs=1)
+                with client.create_session(cfg) as s:
+                    effective = tomllib.loads(s.spec.task_config_toml)["rewards"]["weights"]
+                asked = stage.config.env.task.get("rewards", {}).get("weights", {})
+                for term, weight in asked.items():
+                    assert effective[term] == weight, (name, stage.name, term)
+                checked += 1
+    assert checked >= 6

@@ -51,7 +51,7 @@ def test_train_resume_export_evaluate(fake_server, tmp_path, capsys):
 
 def test_a_stage_starts_the_upright_curriculum_where_its_checkpoint_left_it(fake_server, tmp_path):
     address, servicer = fake_server
-    curriculum = 'env.task_overrides_toml="[rewards.upright_curriculum]\\nenabled = true\\n"'
+    curriculum = "env.task.rewards.upright_curriculum.enabled=true"
     args = ["train", "--server", address, "--num-envs", "6", *SMALL, "--set", curriculum]
     first = tmp_path / "first"
     assert main([*args, "--log-dir", str(first), "--iterations", "1"]) == 0

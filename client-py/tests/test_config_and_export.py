@@ -10,6 +10,7 @@ import torch
 
 from unigait.config import (
     TrainConfig,
+    apply,
     load_config,
     parse_override,
     resume_upright_curriculum,
@@ -45,24 +46,24 @@ def test_config_overrides_and_toml(tmp_path):
     )
 
 
-def test_task_setting_is_merged_into_the_fragment_and_a_resume_keeps_the_curriculum():
-    fragment = "[rewards.upright_curriculum]\nenabled = true\n\n[env]\ndecimation = 4\n"
-    merged = tomllib.loads(with_task_setting(fragment, "rewards.upright_curriculum.start", 1.3))
-    assert merged == {
+def test_task_setting_is_merged_into_the_table_and_a_resume_keeps_the_curriculum():
+    table = {"rewards": {"upright_curriculum": {"enabled": True}}, "env": {"decimation": 4}}
+    assert with_task_setting(table, "rewards.upright_curriculum.start", 1.3) == {
         "rewards": {"upright_curriculum": {"enabled": True, "start": 1.3}},
         "env": {"decimation": 4},
     }
-    assert tomllib.loads(with_task_setting("", "modes.biped_probability", 1.0)) == {
+    assert table == {"rewards": {"upright_curriculum": {"enabled": True}}, "env": {"decimation": 4}}
+    assert with_task_setting({}, "modes.biped_probability", 1.0) == {
         "modes": {"biped_probability": 1.0}
     }
 
     off = load_config(None, [])
-    on = dataclasses.replace(off, env=dataclasses.replace(off.env, task_overrides_toml=fragment))
+    on = dataclasses.replace(off, env=dataclasses.replace(off.env, task=table))
     resumed = resume_upright_curriculum(on, {"upright_pitch": 1.35})
-    task = tomllib.loads(resumed.env.task_overrides_toml)
+    task = tomllib.loads(resumed.env.task_toml())
     assert task["rewards"]["upright_curriculum"] == {"enabled": True, "start": 1.35}
     assert task["env"] == {"decimation": 4}
-    assert dataclasses.replace(resumed.env, task_overrides_toml=fragment) == on.env
+    assert dataclasses.replace(resumed.env, task=table) == on.env
     # Nothing to carry: no threshold in the checkpoint, or the run has no curriculum.
     assert resume_upright_curriculum(on, {}) is on
     assert resume_upright_curriculum(off, {"upright_pitch": 1.35}) is off
@@ -113,15 +114,23 @@ def test_onnx_export_matches_torch(tmp_path):
     np.testing.assert_allclose(policy(x).detach(), by_hand.detach(), atol=1e-6)
 
 
-def test_presets_load_and_each_stage_can_start_from_the_one_before():
-    from unigait import presets
-
-    cfgs = {name: load_config(None, presets.overrides_of(name)) for name in presets.names()}
-    assert set(cfgs) >= {"quad_flat", "unified_flat", "unified_terrain"}
-    # quad_flat keeps Table III (its shipped M1 policy was trained so).
-    assert list(cfgs["quad_flat"].policy.actor_hidden_dims) == [512, 256, 128]
-    # unified_terrain starts from a unified_flat checkpoint: the networks must match.
-    flat, terrain = cfgs["unified_flat"].policy, cfgs["unified_terrain"].policy
-    assert list(flat.actor_hidden_dims) == list(terrain.actor_hidden_dims) == [256, 128, 64]
-    assert list(flat.critic_hidden_dims) == list(terrain.critic_hidden_dims) == [256, 128, 64]
-    assert cfgs["unified_flat"].ppo == cfgs["quad_flat"].ppo  # the paper's PPO everywhere
+def test_the_task_is_a_table_set_by_key_and_an_old_checkpoints_string_still_reads():
+    cfg = load_config(
+        None,
+        [
+            "env.task.rewards.weights.biped_body_contact=-3.0",
+            "env.task.rewards.upright_pitch=1.45",
+        ],
+    )
+    assert cfg.env.task == {
+        "rewards": {"weights": {"biped_body_contact": -3.0}, "upright_pitch": 1.45}
+    }
+    assert tomllib.loads(cfg.env.task_toml()) == cfg.env.task
+    assert TrainConfig().env.task_toml() == ""
+    # The config (with its task table) survives its own TOML.
+    assert apply(TrainConfig(), tomllib.loads(cfg.to_toml())) == cfg
+    # A checkpoint written before the task was a table carries a TOML string: read as one.
+    old = {"env": {"task_overrides_toml": "[modes]\nbiped_probability = 0.0\n", "num_envs": 8}}
+    assert apply(TrainConfig(), old).env.task == {"modes": {"biped_probability": 0.0}}
+    with pytest.raises(TypeError, match=r"env\.task must be a table"):
+        apply(TrainConfig(), {"env": {"task": 3}})

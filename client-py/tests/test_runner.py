@@ -4,6 +4,7 @@ own runner on the adapter."""
 import csv
 import dataclasses
 import math
+import tomllib
 
 import pytest
 import torch
@@ -14,8 +15,9 @@ from unigait.cli import main, training_command
 from unigait.config import load_config
 from unigait.env import TorchVecEnv
 from unigait.env.rsl_rl_env import RslRlVecEnv, rsl_rl_train_cfg
+from unigait.milestones import milestone
+from unigait.model_card import CardInputs, model_card
 from unigait.runners import CheckpointMismatchError, OnPolicyRunner
-from unigait.ship import model_card
 
 
 def test_runner_trains_logs_checkpoints_and_resumes(tmp_path, capsys):
@@ -84,7 +86,7 @@ def test_runner_trains_logs_checkpoints_and_resumes(tmp_path, capsys):
         ("[rewards.upright_curriculum]\nstart = 1.4\n", [first]),
         (priced, [first, f"{first} --set ... --resume {tmp_path / 'model_staged.pt'}"]),
     ):
-        task = dataclasses.replace(cfg.env, task_overrides_toml=fragment)
+        task = dataclasses.replace(cfg.env, task=tomllib.loads(fragment))
         changed = OnPolicyRunner(
             TorchVecEnv(FakeSession(8)), dataclasses.replace(cfg, env=task), None
         )
@@ -108,31 +110,58 @@ def test_runner_trains_logs_checkpoints_and_resumes(tmp_path, capsys):
     staged.record_stage(second)
     staged.record_stage(second)
     assert staged.stages == [first, second]
-    card = model_card("u", "unified_flat", staged.state_dict(), {}, [], "abc", 1000, 8)
+    m2 = milestone("M2")
+
+    def card_of(evals: dict, rows: list) -> str:
+        return model_card(
+            CardInputs(
+                name="u",
+                recipe="unified_flat",
+                lineage="unified_flat_lineage",
+                milestones=[m2],
+                checkpoint=staged.state_dict(),
+                evals=evals,
+                rows=rows,
+                commit="abc",
+                eval_seed=1000,
+                num_envs=8,
+                ship_command="python -m unigait ship --run-dir r --name u --recipe unified_flat",
+            )
+        )
+
+    card = card_of({}, [])
     assert "Biped mode" not in card  # no biped evaluation, no line
+    assert "## Milestone M2: NOT met" in card and "| n/a | no |" in card
     biped_eval = {"tracking/biped/mean_pitch_rad": 0.5, "head_contact_share": 0.75}
-    with_biped = model_card(
-        "u", "unified_flat", staged.state_dict(), {"tracking_biped": biped_eval}, [], "a", 1, 8
-    )
+    with_biped = card_of({"tracking_biped": biped_eval}, [])
     assert "mean pitch 0.50 rad (upright above 1.4), head on the ground 75% of the time." in (
         with_biped
     )
-    assert "along the heading" not in with_biped  # an older server: no split, no sentence
-    biped_eval["tracking/biped/lin_vel_error_forward_mps"] = 0.125
-    biped_eval["tracking/biped/lin_vel_error_lateral_mps"] = 0.25
-    split = model_card(
-        "u", "unified_flat", staged.state_dict(), {"tracking_biped": biped_eval}, [], "a", 1, 8
-    )
-    assert "of the time. Its velocity error along the heading 0.125 m/s, across it 0.250" in split
+    assert "does nothing" not in with_biped  # an older server: no split, no table
+    biped_eval["tracking/biped/lin_vel_error_lateral_mps"] = 0.125
+    biped_eval["tracking/biped/do_nothing/lin_vel_error_lateral_mps"] = 0.25
+    split = card_of({"tracking_biped": biped_eval}, [])
+    assert "| biped | across the heading (m/s) | 0.125 | 0.250 |" in split
+    switch = {
+        "success_rate": 0.953125,
+        "success_rate_ci95_low": 0.870,
+        "success_rate_ci95_high": 0.984,
+        "strict_success_rate": 0.5,
+        "trials": 64,
+    }
+    strict = card_of({"transition_quad_to_biped": switch}, [])
+    assert "| `transition_quad_to_biped` | 64 | 0.953 [0.87, 0.98] | 0.500 |" in strict
     # The wall time spans the shipped log alone, and the card says which iterations that is.
     log = [
         {"iteration": "41", "iteration_time_s": "1800"},
         {"iteration": "42", "iteration_time_s": "900"},
     ]
-    logged = model_card("u", "unified_flat", staged.state_dict(), {}, log, "a", 1, 8)
+    logged = card_of({}, log)
     assert "training wall time: 0.75 h (iterations 41-42, the shipped log)" in logged
     assert "training wall time: 0.00 h\n" in card  # no log, no span
-    assert f"```sh\n{first}\n{second}\npython -m unigait ship" in card
+    reproduce = "python -m unigait train --recipe unified_flat --log-dir runs/unified_flat\n"
+    assert f"```sh\n{reproduce}python -m unigait ship --run-dir r" in card
+    assert "recipe `unified_flat_lineage` (the stages as they ran)" in card
     assert "- networks: actor [32, 16], critic [32, 16], estimator [16], elu: NOT Table III" in card
     assert staged.iteration == 0 and staged.ppo.learning_rate == 2.5e-5
     # Every difference named at once, each with its --set: sizes, activation, estimator.

@@ -6,8 +6,8 @@ import pytest
 from test_cli import SMALL
 
 from unigait.cli import main
-from unigait.selection import milestone_score, recent_checkpoints
-from unigait.ship import M2, MILESTONE_SCENARIOS
+from unigait.milestones import milestone
+from unigait.selection import recent_checkpoints
 
 
 def test_milestone_score_counts_criteria_and_sums_clipped_relative_margins():
@@ -24,7 +24,7 @@ def test_milestone_score_counts_criteria_and_sums_clipped_relative_margins():
         "transition_biped_to_quad": {"success_rate": 1.0},  # >= 0.9: met, +1/9
         # transition_quad_to_biped missing: not met, -1
     }
-    met, margin = milestone_score(evals, M2)
+    met, margin = milestone("M2").score(evals)
     assert met == 4
     assert margin == pytest.approx(0.2 - 0.5 + 1.0 + 0.1 - 1.0 + 0.1 / 0.9 - 1.0)
 
@@ -48,12 +48,12 @@ def test_ship_chooses_on_the_validation_seed_and_reports_on_the_evaluation_seed(
     run = tmp_path / "run"
     train = ["train", "--server", address, "--num-envs", "6", "--log-dir", str(run), *SMALL]
     assert main([*train, "--iterations", "3"]) == 0
-    ship = ["ship", "--server", address, "--run-dir", str(run), "--preset", "unified_flat"]
+    ship = ["ship", "--server", address, "--run-dir", str(run), "--recipe", "unified_flat"]
     ship += ["--name", "u", "--out-root", str(tmp_path / "policies"), "--num-envs", "4"]
     servicer.evaluated.clear()
     select = ["--select-last", "2", "--select-seed", "7", "--select-envs", "12"]
     assert main([*ship, *select, "--eval-seed", "1000"]) == 0
-    scenarios = list(MILESTONE_SCENARIOS["unified_flat"])
+    scenarios = list(milestone("M2").scenarios)
     # Iterations 2 and 3 on seed 7 with 12 envs, then the chosen one on seed 1000 with 4.
     assert servicer.evaluated == [(s, 7, 12) for s in scenarios] * 2 + [
         (s, 1000, 4) for s in scenarios

@@ -7,14 +7,15 @@ import contextlib
 import json
 import os
 import shlex
+import shutil
 import sys
+import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 from unigait.client import (
     Client,
     ConnectionOptions,
-    SessionConfig,
     UnigaitError,
     load_connection_options,
     open_session,
@@ -25,8 +26,6 @@ from unigait.server_process import LocalServer
 # Idle OpenMP threads sleep instead of spinning: the learner's torch threads share the cores with
 # the simulation server. Set before torch is imported (the commands import it lazily).
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-
-QUAD_ONLY_TOML = "[modes]\nbiped_probability = 0.0\n"
 
 
 @contextlib.contextmanager
@@ -81,7 +80,7 @@ NOT_IN_RECIPE = frozenset(
 
 
 def training_command(argv: Sequence[str]) -> str:
-    """The shell line of a training stage, without where it ran, resumed or got credentials."""
+    """The shell line of a command, without where it ran, resumed or got credentials."""
     kept: list[str] = []
     skip = False
     for arg in argv:
@@ -94,11 +93,76 @@ def training_command(argv: Sequence[str]) -> str:
     return shlex.join(["python", "-m", "unigait", *kept])
 
 
+def _train_recipe(args: argparse.Namespace) -> int:
+    """``train --recipe``: every stage of a recipe, carrying on where a previous call stopped."""
+    from unigait.recipes import RecipeError, describe, load_recipe
+
+    try:
+        recipe = load_recipe(args.recipe, list(args.set or []))
+    except RecipeError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    if args.dry_run:
+        print(describe(recipe))
+        return 0
+    from unigait.runners.recipe_runner import RecipeRunError, run_recipe
+
+    if args.log_dir is None:
+        print("error: a recipe run needs --log-dir (where it resumes from)", file=sys.stderr)
+        return 2
+    if args.ray is not None or args.resume or args.init_from:
+        print("error: --recipe takes no --ray, --resume or --init-from", file=sys.stderr)
+        return 2
+    servers = args.server or list(recipe.stages[0].config.env.servers)
+    with _servers(servers, recipe.stages[0].config.env.server_bin) as addresses:
+        try:
+            run_recipe(
+                recipe,
+                list(args.set or []),
+                Path(args.log_dir),
+                addresses,
+                _connection(args),
+                overwrite=args.overwrite,
+                adopt=args.adopt_recipe,
+            )
+        except RecipeRunError as err:
+            print(f"error: {err}", file=sys.stderr)
+            return 2
+    return 0
+
+
+def _fresh_log_dir(log_dir: Path, args: argparse.Namespace) -> str | None:
+    """Why a run may not write into ``log_dir`` (None: it may).
+
+    A fresh run into a folder that holds another run would mix their logs and write over their
+    checkpoints.
+    """
+    if args.resume or not log_dir.exists() or not any(log_dir.iterdir()):
+        return None
+    if args.overwrite:
+        shutil.rmtree(log_dir)
+        return None
+    return f"{log_dir} is not empty: give --resume CHECKPOINT, --overwrite or another --log-dir"
+
+
 def _train(args: argparse.Namespace) -> int:
+    if args.recipe:
+        return _train_recipe(args)
+    if args.dry_run or args.adopt_recipe:
+        print("error: --dry-run and --adopt-recipe go with --recipe", file=sys.stderr)
+        return 2
+    import dataclasses
+
     import torch
 
-    from unigait.config import load_config, resume_upright_curriculum
+    from unigait.config import (
+        load_config,
+        resume_upright_curriculum,
+        session_config,
+        with_task_setting,
+    )
     from unigait.env import TorchVecEnv
+    from unigait.provenance import git_commit
     from unigait.runners import CheckpointMismatchError, OnPolicyRunner
 
     overrides = list(args.set or [])
@@ -106,24 +170,23 @@ def _train(args: argparse.Namespace) -> int:
         overrides.append(f"env.num_envs={args.num_envs}")
     if args.iterations is not None:
         overrides.append(f"runner.max_iterations={args.iterations}")
-    if args.log_dir is not None:
-        overrides.append(f"runner.log_dir={json.dumps(args.log_dir)}")
+    log_dir_name = args.log_dir or time.strftime("runs/train-%Y%m%d-%H%M%S")
+    overrides.append(f"runner.log_dir={json.dumps(log_dir_name)}")
     if args.seed is not None:
         overrides += [f"env.seed={args.seed}", f"runner.seed={args.seed}"]
     if args.quiet:
         overrides.append("runner.quiet=true")
     if args.server:
         overrides.append(f"env.servers={json.dumps(args.server)}")
-    if args.preset:
-        from unigait import presets
-
-        overrides = presets.overrides_of(args.preset) + overrides
     cfg = load_config(args.config, overrides)
     if args.quad_only:
-        from dataclasses import replace
-
-        toml = cfg.env.task_overrides_toml + "\n" + QUAD_ONLY_TOML
-        cfg = replace(cfg, env=replace(cfg.env, task_overrides_toml=toml))
+        task = with_task_setting(cfg.env.task, "modes.biped_probability", 0.0)
+        cfg = dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, task=task))
+    log_dir = Path(cfg.runner.log_dir)
+    refusal = _fresh_log_dir(log_dir, args)
+    if refusal:
+        print(f"error: {refusal}", file=sys.stderr)
+        return 2
     if args.resume or args.init_from:
         # A stage started from an upright policy (terrain after flat, say) keeps its threshold
         # too, rather than paying I_up from 1.0 rad again while the curriculum climbs back.
@@ -133,17 +196,9 @@ def _train(args: argparse.Namespace) -> int:
     torch.manual_seed(cfg.runner.seed)
     if cfg.runner.torch_threads > 0:
         torch.set_num_threads(cfg.runner.torch_threads)
-    log_dir = Path(cfg.runner.log_dir)
     log_dir.mkdir(parents=True, exist_ok=True)
     (log_dir / "config.toml").write_text(cfg.to_toml())
-    session_cfg = SessionConfig(
-        num_envs=cfg.env.num_envs,
-        seed=cfg.env.seed,
-        task_overrides_toml=cfg.env.task_overrides_toml,
-        terrain=cfg.env.terrain,
-        terrain_level=cfg.env.terrain_level,
-        reward_terms=True,
-    )
+    session_cfg = session_config(cfg)
     if args.ray is not None:  # servers as Ray actors, lost ones replaced: unigait.ray
         from unigait.ray import PoolConfigError, ServerCredentials, train_on_ray
 
@@ -187,6 +242,7 @@ def _train(args: argparse.Namespace) -> int:
                 print(f"error: {err}", file=sys.stderr)
                 return 2
             runner.record_stage(training_command(args.argv))
+            runner.provenance = {"git_commit": git_commit()}
             remaining = max(cfg.runner.max_iterations - runner.iteration, 0)
             print(
                 f"training {env.num_envs} envs x {cfg.runner.num_steps_per_env} steps on "
@@ -247,8 +303,10 @@ def _evaluate(args: argparse.Namespace) -> int:
 
 
 def _ship(args: argparse.Namespace) -> int:
+    from unigait.milestones import milestone
+    from unigait.recipes import RecipeError, load_recipe
     from unigait.selection import describe, select_checkpoint
-    from unigait.ship import ship
+    from unigait.ship import run_folder, ship
 
     if args.select_last > 0 and (args.checkpoint or args.select_seed == args.eval_seed):
         print(
@@ -257,32 +315,46 @@ def _ship(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return 2
+    try:
+        recipe = load_recipe(args.recipe)
+        if args.lineage:
+            load_recipe(args.lineage)
+        judged_by = args.milestone or recipe.milestone
+        if judged_by is None:
+            raise RecipeError(f"recipe {recipe.name} names no milestone: give --milestone")
+        milestones = [milestone(judged_by), *(milestone(m) for m in args.also or [])]
+    except (RecipeError, KeyError) as err:
+        print(f"error: {err.args[0] if err.args else err}", file=sys.stderr)
+        return 2
     checkpoint = Path(args.checkpoint) if args.checkpoint else None
     select_envs = args.select_envs or args.num_envs
     selection = None
     with _servers(args.server or []) as addresses:
         if args.select_last > 0:
             ranked = select_checkpoint(
-                Path(args.run_dir),
-                args.preset,
+                run_folder(Path(args.run_dir)),
+                milestones[0],
                 addresses[0],
                 args.select_last,
                 args.select_seed,
                 select_envs,
             )
             checkpoint = ranked[0].path
-            selection = describe(ranked, args.preset, args.select_seed, select_envs)
+            selection = describe(ranked, milestones[0], args.select_seed, select_envs)
             print(selection)
         folder = ship(
             Path(args.run_dir),
             args.name,
-            args.preset,
+            recipe.name,
+            milestones,
             addresses,
+            ship_command=training_command(args.argv),
             out_root=Path(args.out_root),
             checkpoint_path=checkpoint,
             eval_seed=args.eval_seed,
             num_envs=args.num_envs,
             selection=selection,
+            lineage=args.lineage,
         )
     print((folder / "MODEL_CARD.md").read_text())
     print(f"shipped to {folder}")
@@ -383,15 +455,28 @@ def build_parser() -> argparse.ArgumentParser:
     )
     t.add_argument("--num-envs", type=int)
     t.add_argument("--iterations", type=int, help="total iterations (runner.max_iterations)")
-    t.add_argument("--log-dir")
+    t.add_argument("--log-dir", help="output folder (default: runs/train-DATE-TIME)")
     t.add_argument("--seed", type=int)
     t.add_argument("--resume", metavar="CHECKPOINT", help="continue from a model_*.pt")
     t.add_argument("--quad-only", action="store_true", help="biped_probability = 0")
     t.add_argument(
-        "--preset",
-        metavar="NAME",
-        help="start from a preset (quad_flat, unified_flat, unified_terrain); "
-        "--config and --set apply on top",
+        "--recipe",
+        metavar="NAME|FILE",
+        help="train every stage of a recipe (a packaged name such as unified_flat, or a .toml "
+        "file); the same command again carries on where it stopped. --set applies to every stage",
+    )
+    t.add_argument(
+        "--dry-run", action="store_true", help="with --recipe: print the resolved stages and exit"
+    )
+    t.add_argument(
+        "--adopt-recipe",
+        action="store_true",
+        help="with --recipe: go on in a log directory whose run started from another recipe text",
+    )
+    t.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="delete what --log-dir holds first (a fresh run refuses a non-empty one otherwise)",
     )
     t.add_argument(
         "--init-from",
@@ -425,9 +510,27 @@ def build_parser() -> argparse.ArgumentParser:
     v.set_defaults(func=_evaluate)
 
     s = sub.add_parser("ship", help="export, evaluate and document a trained policy")
-    s.add_argument("--run-dir", required=True, help="training output (model_latest.pt, curves)")
+    s.add_argument(
+        "--run-dir",
+        required=True,
+        help="training output (model_latest.pt, curves), or a recipe run's (its last stage)",
+    )
     s.add_argument("--name", required=True, help="folder under --out-root")
-    s.add_argument("--preset", required=True, help="the preset it was trained with")
+    s.add_argument(
+        "--recipe", required=True, help="the recipe that reproduces it (names its milestone)"
+    )
+    s.add_argument("--milestone", help="judge it by this milestone instead of the recipe's")
+    s.add_argument(
+        "--also",
+        action="append",
+        metavar="MILESTONE",
+        help="also report where it stands against this milestone (repeatable), e.g. M2+",
+    )
+    s.add_argument(
+        "--lineage",
+        metavar="RECIPE",
+        help="the recipe recording how this checkpoint was made, when not --recipe",
+    )
     s.add_argument("--checkpoint", help="a model_*.pt instead of model_latest.pt")
     s.add_argument("--out-root", default="assets/policies")
     s.add_argument("--server", action="append", metavar="HOST:PORT")

@@ -1,11 +1,13 @@
 """Learner configuration: dataclasses with defaults, TOML files and overrides.
 
 Overrides look like ``section.key=value`` with the value parsed as TOML, e.g.
-``ppo.learning_rate=3e-4`` or ``env.servers=["a:1","b:2"]``.
+``ppo.learning_rate=3e-4``, ``env.servers=["a:1","b:2"]`` or, inside the task table,
+``env.task.rewards.weights.biped_body_contact=-3.0``.
 """
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import tomllib
 import typing
@@ -15,6 +17,7 @@ from typing import Any
 
 from unigait.algorithms.estimator_learning import EstimatorConfig
 from unigait.algorithms.ppo import PPOConfig
+from unigait.client.types import SessionConfig
 
 
 @dataclass(frozen=True)
@@ -26,7 +29,8 @@ class EnvConfig:
         server_bin: Binary for a local server (empty: ``$UNIGAIT_SERVER_BIN`` or the repo's build).
         num_envs: Envs in the batch (256: measured on 2 cores, see the package README).
         seed: Session seed (shard i gets seed + i).
-        task_overrides_toml: TOML fragment overriding the task config.
+        task: The task config's overrides as a nested table (``{"rewards": {"weights":
+            {"biped_body_contact": -3.0}}}``); the client sends it as TOML.
         terrain: ``"flat"``, ``"curriculum"`` or a pinned type.
         terrain_level: Level of a pinned type or the curriculum's highest starting level.
     """
@@ -35,9 +39,13 @@ class EnvConfig:
     server_bin: str = ""
     num_envs: int = 256
     seed: int = 1
-    task_overrides_toml: str = ""
+    task: dict[str, Any] = field(default_factory=dict)
     terrain: str = "flat"
     terrain_level: int = 0
+
+    def task_toml(self) -> str:
+        """The task overrides as the TOML fragment the server's session config takes."""
+        return toml_document(self.task) if self.task else ""
 
 
 @dataclass(frozen=True)
@@ -115,7 +123,7 @@ class TrainConfig:
 
     def to_toml(self) -> str:
         """The config as TOML text (loadable with :func:`load_config`)."""
-        return _toml_document(self.to_dict())
+        return toml_document(self.to_dict())
 
 
 def _toml_value(v: Any) -> str:
@@ -124,8 +132,6 @@ def _toml_value(v: Any) -> str:
     if isinstance(v, int | float):
         return repr(v)
     if isinstance(v, str):
-        if "\n" in v:
-            return '"""\n' + v.replace("\\", "\\\\") + '"""'
         return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
     if isinstance(v, list | tuple):
         return "[" + ", ".join(_toml_value(x) for x in v) + "]"
@@ -142,23 +148,29 @@ def _toml_tables(doc: dict[str, Any], prefix: str = "") -> list[str]:
     return lines
 
 
-def _toml_document(doc: dict[str, Any]) -> str:
+def toml_document(doc: dict[str, Any]) -> str:
     """``doc`` as a TOML document."""
     return "\n".join(_toml_tables(doc)).strip() + "\n"
 
 
-def with_task_setting(task_overrides_toml: str, dotted: str, value: Any) -> str:
-    """The task-override fragment with ``dotted`` (``table.sub.key``) set to ``value``.
+def merged(base: dict[str, Any], update: dict[str, Any]) -> dict[str, Any]:
+    """``base`` with ``update`` merged in, tables recursively (neither is changed)."""
+    out = dict(base)
+    for key, value in update.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = merged(out[key], value)
+        else:
+            out[key] = value
+    return out
 
-    The fragment is parsed and written back whole, since TOML lets a table be defined once.
-    """
-    doc = tomllib.loads(task_overrides_toml)
+
+def with_task_setting(task: dict[str, Any], dotted: str, value: Any) -> dict[str, Any]:
+    """The task table with ``dotted`` (``table.sub.key``) set to ``value``."""
     *tables, key = dotted.split(".")
-    node = doc
-    for t in tables:
-        node = node.setdefault(t, {})
-    node[key] = value
-    return _toml_document(doc)
+    update: dict[str, Any] = {key: value}
+    for t in reversed(tables):
+        update = {t: update}
+    return merged(task, update)
 
 
 def resume_upright_curriculum(cfg: TrainConfig, checkpoint: dict[str, Any]) -> TrainConfig:
@@ -170,29 +182,28 @@ def resume_upright_curriculum(cfg: TrainConfig, checkpoint: dict[str, Any]) -> T
     overrides turn the curriculum on and the checkpoint recorded a threshold.
     """
     threshold = checkpoint.get("upright_pitch")
-    overrides = cfg.env.task_overrides_toml
-    curriculum = tomllib.loads(overrides).get("rewards", {}).get("upright_curriculum", {})
+    task = cfg.env.task
+    curriculum = task.get("rewards", {}).get("upright_curriculum", {})
     if threshold is None or not curriculum.get("enabled", False):
         return cfg
-    toml = with_task_setting(overrides, "rewards.upright_curriculum.start", float(threshold))
-    return dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, task_overrides_toml=toml))
+    task = with_task_setting(task, "rewards.upright_curriculum.start", float(threshold))
+    return dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, task=task))
 
 
-def same_task(a: str, b: str) -> bool:
-    """Whether two task-override fragments train the same task.
+def same_task(a: dict[str, Any], b: dict[str, Any]) -> bool:
+    """Whether two task tables train the same task.
 
-    Equal as TOML, the upright curriculum's ``start`` aside (a resume sets it from the
-    checkpoint).
+    Equal, the upright curriculum's ``start`` aside (a resume sets it from the checkpoint).
     """
 
     def pruned(table: dict[str, Any]) -> dict[str, Any]:
         kept = {k: pruned(v) if isinstance(v, dict) else v for k, v in table.items()}
         return {k: v for k, v in kept.items() if v != {}}
 
-    def core(fragment: str) -> dict[str, Any]:
-        values = tomllib.loads(fragment)
-        values.get("rewards", {}).get("upright_curriculum", {}).pop("start", None)
-        return pruned(values)
+    def core(task: dict[str, Any]) -> dict[str, Any]:
+        task = copy.deepcopy(task)
+        task.get("rewards", {}).get("upright_curriculum", {}).pop("start", None)
+        return pruned(task)
 
     return core(a) == core(b)
 
@@ -203,6 +214,10 @@ def _coerce(section: type, key: str, value: Any) -> Any:
         known = [f.name for f in dataclasses.fields(section)]
         raise KeyError(f"unknown key {key!r} in [{section.__name__}]; known: {known}")
     hint = hints[key]
+    if typing.get_origin(hint) is dict:
+        if not isinstance(value, dict):
+            raise TypeError(f"{section.__name__}.{key} must be a table, got {value!r}")
+        return value
     if typing.get_origin(hint) is tuple:
         if not isinstance(value, list | tuple):
             value = [value]
@@ -216,14 +231,43 @@ def _coerce(section: type, key: str, value: Any) -> Any:
     return value
 
 
+def _task_entries(task: dict[str, Any], entries: dict[str, Any]) -> dict[str, Any]:
+    """``entries`` of ``[env]`` with the task table merged into ``task``.
+
+    ``task`` merges table by table (a stage adds a weight without restating the others);
+    ``task.a.b = v`` (from ``--set env.task.a.b=v``) sets one value; ``task_overrides_toml``, the
+    TOML-in-a-string form of checkpoints written before the task was a table, is read as one.
+    """
+    rest = {}
+    for key, value in entries.items():
+        if key == "task":
+            if not isinstance(value, dict):
+                raise TypeError(f"env.task must be a table, got {value!r}")
+            task = merged(task, value)
+        elif key.startswith("task."):
+            task = with_task_setting(task, key.removeprefix("task."), value)
+        elif key == "task_overrides_toml":
+            task = merged(task, tomllib.loads(str(value)))
+        else:
+            rest[key] = value
+    return {**rest, "task": task}
+
+
 def apply(cfg: TrainConfig, values: dict[str, dict[str, Any]]) -> TrainConfig:
-    """A copy of ``cfg`` with ``values[section][key]`` set (unknown names are errors)."""
+    """A copy of ``cfg`` with ``values[section][key]`` set (unknown names are errors).
+
+    The task table (``env.task``) is merged into the current one rather than replaced.
+    """
     sections = {f.name: f for f in dataclasses.fields(cfg)}
     changes: dict[str, Any] = {}
     for name, entries in values.items():
         if name not in sections:
             raise KeyError(f"unknown config section [{name}]; known: {sorted(sections)}")
+        if not isinstance(entries, dict):
+            raise TypeError(f"config section [{name}] must be a table, got {entries!r}")
         current = getattr(cfg, name)
+        if name == "env":
+            entries = _task_entries(current.task, entries)
         cls = type(current)
         updated = {k: _coerce(cls, k, v) for k, v in entries.items()}
         changes[name] = dataclasses.replace(current, **updated)
@@ -256,3 +300,15 @@ def load_config(path: str | Path | None = None, overrides: list[str] | None = No
         section, key, value = parse_override(text)
         grouped.setdefault(section, {})[key] = value
     return apply(cfg, grouped)
+
+
+def session_config(cfg: TrainConfig) -> SessionConfig:
+    """The session a training run opens (reward terms on: the logger needs them)."""
+    return SessionConfig(
+        num_envs=cfg.env.num_envs,
+        seed=cfg.env.seed,
+        task_overrides_toml=cfg.env.task_toml(),
+        terrain=cfg.env.terrain,
+        terrain_level=cfg.env.terrain_level,
+        reward_terms=True,
+    )

@@ -7,7 +7,8 @@ figure tuned on its own test. So the choice is made on another seed (``select_se
 shipped figures come from the evaluation seed, which the choice never saw.
 
 Rank: milestone criteria met, then the summed relative margin to the bounds (each clipped to
-[-1, 1], so one runaway figure does not outvote the others), then the later checkpoint.
+[-1, 1], so one runaway figure does not outvote the others), then the later checkpoint. The
+milestone and its bounds come from the milestones file (:mod:`unigait.milestones`).
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from unigait.ship import MILESTONE_SCENARIOS, MILESTONES, Check, metric_of
+from unigait.milestones import Milestone
 
 _CHECKPOINT = re.compile(r"model_(\d+)\.pt")
 
@@ -33,24 +34,6 @@ class Candidate:
     margin: float
 
 
-def milestone_score(
-    evals: dict[str, dict[str, float]], checks: Sequence[Check]
-) -> tuple[int, float]:
-    """(criteria met, summed relative margin): a missing figure counts as a margin of -1."""
-    met, margin = 0, 0.0
-    for check in checks:
-        value = metric_of(evals, check)
-        if value is None:
-            margin -= 1.0
-            continue
-        met += check.passes(value)
-        relative = (value - check.bound) / abs(check.bound) if check.bound else value
-        if check.op == "<=":
-            relative = -relative
-        margin += max(-1.0, min(1.0, relative))
-    return met, margin
-
-
 def recent_checkpoints(run_dir: Path, last: int) -> list[tuple[int, Path]]:
     """The run's ``last`` numbered checkpoints (``model_<iteration>.pt``), oldest first."""
     found = [
@@ -63,7 +46,7 @@ def recent_checkpoints(run_dir: Path, last: int) -> list[tuple[int, Path]]:
 
 def select_checkpoint(
     run_dir: Path,
-    preset: str,
+    milestone: Milestone,
     address: str,
     last: int,
     seed: int,
@@ -73,8 +56,6 @@ def select_checkpoint(
     from unigait.client import Client
     from unigait.export import export_onnx, load_policy
 
-    checks = MILESTONES.get(preset, ("-", ()))[1]
-    scenarios = MILESTONE_SCENARIOS.get(preset, ("tracking_quad",))
     checkpoints = recent_checkpoints(run_dir, last)
     if not checkpoints:
         raise FileNotFoundError(f"no model_<iteration>.pt in {run_dir}")
@@ -86,25 +67,27 @@ def select_checkpoint(
             export_onnx(policy, onnx_path, dims["history_length"], dims["obs_dim"])
             onnx = onnx_path.read_bytes()
             evals = {
-                s: client.evaluate(onnx, s, num_envs=num_envs, seed=seed).metrics for s in scenarios
+                s: client.evaluate(onnx, s, num_envs=num_envs, seed=seed).metrics
+                for s in milestone.scenarios
             }
-            met, margin = milestone_score(evals, checks)
+            met, margin = milestone.score(evals)
             candidates.append(Candidate(path, iteration, met, margin))
     return sorted(candidates, key=lambda c: (c.met, c.margin, c.iteration), reverse=True)
 
 
-def describe(candidates: Sequence[Candidate], preset: str, seed: int, num_envs: int) -> str:
+def describe(
+    candidates: Sequence[Candidate], milestone: Milestone, seed: int, num_envs: int
+) -> str:
     """The model card's paragraph on how the checkpoint was chosen."""
-    milestone, checks = MILESTONES.get(preset, ("-", ()))
     chosen = candidates[0]
     scores = ", ".join(
-        f"{c.iteration}: {c.met}/{len(checks)} ({c.margin:+.2f})"
+        f"{c.iteration}: {c.met}/{milestone.criteria()} ({c.margin:+.2f})"
         for c in sorted(candidates, key=lambda c: c.iteration)
     )
     return (
         f"Chosen among the run's last {len(candidates)} checkpoints on validation seed {seed} "
         f"({num_envs} envs per scenario): "
-        f"{milestone} criteria met (summed relative margin) by iteration: {scores}. Iteration "
+        f"{milestone.name} criteria met (summed relative margin) by iteration: {scores}. Iteration "
         f"{chosen.iteration} ranked first; the figures above come from the evaluation seed, "
         "which the choice never saw."
     )

@@ -2,105 +2,34 @@
 
 The folder holds ``policy.onnx`` (the fused estimator + actor the server runs), ``model.pt`` (the
 training checkpoint, to resume or stage from), ``training.png`` and ``progress.csv`` (the curves),
-``eval.json`` (the milestone scenarios, evaluated on seeds training never used) and
-``MODEL_CARD.md`` (preset, config, commit, env steps, wall time, machine, the milestone figures
-and how to reproduce them).
+``eval.json`` (every figure of the milestone scenarios, on a seed training never used),
+``reports/`` (the server's full JSON report of each scenario) and ``MODEL_CARD.md`` (recipe,
+config, commit, env steps, machine, the milestone tables and how to reproduce it). The folder is
+assembled under a temporary name and renamed into place once every evaluation has succeeded, so a
+ship that fails leaves the shipped policy as it was.
 """
 
 from __future__ import annotations
 
 import csv
 import json
-import os
-import platform
 import shutil
-import subprocess
 from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
-#: Scenarios each preset's milestone is judged on.
-MILESTONE_SCENARIOS: dict[str, tuple[str, ...]] = {
-    "quad_flat": ("tracking_quad",),
-    "unified_flat": (
-        "tracking_quad",
-        "tracking_biped",
-        "transition_biped_to_quad",
-        "transition_quad_to_biped",
-    ),
-    "unified_terrain": (
-        "tracking_quad",
-        "tracking_biped",
-        "transition_biped_to_quad",
-        "transition_quad_to_biped",
-        "table_vi",
-    ),
-}
+from unigait.milestones import Milestone
+from unigait.model_card import CardInputs, model_card
+from unigait.provenance import git_commit
+from unigait.recipes import load_recipe
+from unigait.runners.recipe_runner import RECIPE_FILE
 
 
-@dataclass(frozen=True)
-class Check:
-    """One milestone criterion: ``metric`` of ``scenario`` compared with ``bound``."""
-
-    scenario: str
-    metric: str
-    op: str
-    bound: float
-    label: str
-
-    def passes(self, value: float | None) -> bool:
-        """Whether ``value`` meets the criterion (a missing value does not)."""
-        if value is None:
-            return False
-        return value <= self.bound if self.op == "<=" else value >= self.bound
-
-
-#: The milestones of the training issue (M1 quad on flat; M2 adds biped and transitions).
-M1: tuple[Check, ...] = (
-    Check("tracking_quad", "tracking/quad/lin_vel_error_mps", "<=", 0.15, "quad lin. vel. error"),
-    Check("tracking_quad", "tracking/quad/ang_vel_error_radps", "<=", 0.2, "quad yaw-rate error"),
-    Check(
-        "tracking_quad", "tracking/quad/termination_rate", "<=", 0.05, "quad episodes terminated"
-    ),
-)
-M2: tuple[Check, ...] = (
-    *M1,
-    Check("tracking_biped", "tracking/biped/upright_share", ">=", 0.9, "biped upright share"),
-    Check("tracking_biped", "tracking/biped/lin_vel_error_mps", "<=", 0.2, "biped lin. vel. error"),
-    Check("transition_biped_to_quad", "success_rate", ">=", 0.9, "biped -> quad success"),
-    Check("transition_quad_to_biped", "success_rate", ">=", 0.9, "quad -> biped success"),
-)
-MILESTONES: dict[str, tuple[str, tuple[Check, ...]]] = {
-    "quad_flat": ("M1", M1),
-    "unified_flat": ("M2", M2),
-    "unified_terrain": ("M2", M2),
-}
-
-
-def _git_commit(repo: Path) -> str:
-    try:
-        out = subprocess.run(
-            ["git", "-C", str(repo), "rev-parse", "--short", "HEAD"],
-            capture_output=True,
-            text=True,
-            check=True,
-        )
-        return out.stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-
-
-def _machine() -> str:
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return f"{os.cpu_count()} cores, {cpu}, no GPU (torch CPU)"
+def run_folder(run_dir: Path) -> Path:
+    """The folder holding the checkpoints: a recipe run's last stage begun, or ``run_dir``."""
+    if not (run_dir / RECIPE_FILE).exists():
+        return run_dir
+    stages = sorted(p for p in run_dir.iterdir() if p.is_dir() and p.name[:2].isdigit())
+    return stages[-1] if stages else run_dir
 
 
 def _progress(run_dir: Path) -> list[dict[str, str]]:
@@ -132,164 +61,47 @@ def _log_until(run_dir: Path, folder: Path, iteration: int) -> list[dict[str, st
     return rows
 
 
-def metric_of(evals: dict[str, dict[str, float]], check: Check) -> float | None:
-    """The figure ``check`` judges, if the evaluation has it."""
-    value = evals.get(check.scenario, {}).get(check.metric)
-    return None if value is None else float(value)
-
-
-def model_card(
-    name: str,
-    preset: str,
-    checkpoint: dict[str, Any],
-    evals: dict[str, dict[str, float]],
-    rows: Sequence[dict[str, str]],
-    commit: str,
-    eval_seed: int,
-    num_envs: int,
-    run_dir: str | None = None,
-    selection: str | None = None,
-) -> str:
-    """The model card's Markdown text.
-
-    ``run_dir`` is the training output shipped from; ``selection`` says how the checkpoint was
-    chosen, when it was.
-    """
-    steps = int(checkpoint.get("total_env_steps", 0))
-    iterations = int(checkpoint.get("iteration", 0))
-    wall_s = sum(float(r.get("iteration_time_s", 0.0) or 0.0) for r in rows)
-    logged = [int(r["iteration"]) for r in rows if r.get("iteration")]
-    # A checkpoint counts iterations and env steps since its lineage's last `--init-from`, and the
-    # shipped log covers the last stage alone: say what each figure spans rather than call it
-    # the whole recipe's cost.
-    wall_span = f" (iterations {min(logged)}-{max(logged)}, the shipped log)" if logged else ""
-    milestone, checks = MILESTONES.get(preset, ("-", ()))
-    lines = [
-        f"# Policy `{name}`",
-        "",
-        f"- preset: `{preset}` (`python -m unigait train --preset {preset}`)",
-        f"- iterations: {iterations}; env steps: {steps:,} (both counted from the last fresh "
-        f"start or `--init-from`); training wall time: {wall_s / 3600:.2f} h{wall_span}",
-        f"- machine: {_machine()}",
-        f"- code: git commit `{commit}`",
-        f"- networks: {_networks(checkpoint)}",
-        f"- evaluated on seed {eval_seed} (training used seeds below 100), {num_envs} envs per "
-        "scenario",
-        "",
-        f"## Milestone {milestone}",
-        "",
-        "| criterion | scenario | metric | bound | value | met |",
-        "| --- | --- | --- | --- | --- | --- |",
-    ]
-    for c in checks:
-        v = metric_of(evals, c)
-        shown = "n/a" if v is None else f"{v:.3f}"
-        lines.append(
-            f"| {c.label} | `{c.scenario}` | `{c.metric}` | {c.op} {c.bound} | {shown} | "
-            f"{'yes' if c.passes(v) else 'no'} |"
-        )
-    if selection:
-        lines += ["", selection]
-    biped = evals.get("tracking_biped", {})
-    if "tracking/biped/mean_pitch_rad" in biped:
-        # Progress the milestone table does not show until the robot is upright.
-        line = (
-            f"Biped mode (`tracking_biped`): mean pitch "
-            f"{biped['tracking/biped/mean_pitch_rad']:.2f} rad (upright above 1.4), head on "
-            f"the ground {biped.get('head_contact_share', float('nan')):.0%} of the time."
-        )
-        if "tracking/biped/lin_vel_error_lateral_mps" in biped:
-            # Which way the biped misses its command: a gait that walks only forward and back
-            # leaves the whole lateral command as error.
-            line += (
-                " Its velocity error along the heading "
-                f"{biped['tracking/biped/lin_vel_error_forward_mps']:.3f} m/s, across it "
-                f"{biped['tracking/biped/lin_vel_error_lateral_mps']:.3f} m/s."
-            )
-        lines += ["", line]
-    stages = [str(s) for s in checkpoint.get("stages", [])]
-    if stages:
-        recipe = (
-            "The commands that trained it, in order (each later stage starts from the one "
-            "before's checkpoint: with `--init-from`, or with `--resume` where the run went on "
-            "with other task overrides or PPO settings):"
-        )
-    else:  # checkpoints written before the runner kept its stages
-        recipe = "The preset's command (this checkpoint does not record its stages):"
-        stages = [f"python -m unigait train --preset {preset} --log-dir runs/{name}"]
-    lines += [
-        "",
-        "## Reproduce",
-        "",
-        recipe,
-        "",
-        "```sh",
-        *stages,
-        f"python -m unigait ship --run-dir {run_dir or f'runs/{name}'} --name {name} "
-        f"--preset {preset}",
-        "```",
-        "",
-        "Training resumes from `model.pt` with `--resume`; a later stage starts from it with "
-        "`--init-from`.",
-        "",
-        "## Config",
-        "",
-        "```toml",
-        _config_toml(checkpoint),
-        "```",
-    ]
-    return "\n".join(lines) + "\n"
-
-
-#: Table III's hidden layers (actor and critic; estimator).
-TABLE_III = ([512, 256, 128], [256, 128])
-
-
-def _networks(checkpoint: dict[str, Any]) -> str:
-    """The card's networks line: the checkpoint's sizes, and whether they are Table III's."""
-    from unigait.config import TrainConfig, apply
-
-    cfg = apply(TrainConfig(), checkpoint.get("config", {}))
-    actor, critic = list(cfg.policy.actor_hidden_dims), list(cfg.policy.critic_hidden_dims)
-    estimator = list(cfg.estimator.hidden_dims)
-    sizes = f"actor {actor}, critic {critic}, estimator {estimator}, {cfg.policy.activation}"
-    if (actor, critic, estimator) == (TABLE_III[0], TABLE_III[0], TABLE_III[1]):
-        return f"Table III ({sizes})"
-    return (
-        f"{sizes}: NOT Table III's (actor and critic {TABLE_III[0]}, estimator "
-        f"{TABLE_III[1]}); the preset says why (measured faster per hour on this machine)"
-    )
-
-
-def _config_toml(checkpoint: dict[str, Any]) -> str:
-    from unigait.config import TrainConfig, apply
-
-    return apply(TrainConfig(), checkpoint.get("config", {})).to_toml().strip()
+def _swap_into_place(built: Path, folder: Path) -> None:
+    """Replace ``folder`` with ``built`` (the old one is removed only once the new one is in)."""
+    old = folder.with_name(f".{folder.name}.old")
+    shutil.rmtree(old, ignore_errors=True)
+    if folder.exists():
+        folder.replace(old)
+    built.replace(folder)
+    shutil.rmtree(old, ignore_errors=True)
 
 
 def ship(
     run_dir: Path,
     name: str,
-    preset: str,
+    recipe: str,
+    milestones: Sequence[Milestone],
     addresses: Sequence[str],
+    *,
+    ship_command: str,
     out_root: Path = Path("assets/policies"),
     checkpoint_path: Path | None = None,
     eval_seed: int = 1000,
     num_envs: int = 64,
     selection: str | None = None,
+    lineage: str | None = None,
 ) -> Path:
-    """Export, evaluate and document the latest checkpoint of ``run_dir``.
+    """Export, evaluate and document a checkpoint of ``run_dir``.
 
     Args:
-        run_dir: A training output directory (``model_latest.pt``, ``progress.csv``, PNG).
+        run_dir: A training output directory, or a recipe run's (its last stage is shipped).
         name: Folder name under ``out_root``.
-        preset: The preset it was trained with (picks the milestone scenarios).
+        recipe: The recipe that reproduces it (checked to load).
+        milestones: The milestone it is judged by first, then those it is reported against;
+            their scenarios are evaluated.
         addresses: Server(s) to evaluate on (the first is used).
+        ship_command: The command line that reproduces this folder (for the card).
         out_root: Where policy folders live.
-        checkpoint_path: A specific checkpoint instead of ``model_latest.pt``.
-        eval_seed: Evaluation seed (not one training used).
+        checkpoint_path: A specific checkpoint instead of the run's ``model_latest.pt``.
+        eval_seed: Evaluation seed (not one training or selection used).
         num_envs: Envs per scenario.
         selection: How ``checkpoint_path`` was chosen (for the model card), if it was.
+        lineage: The recipe recording how this checkpoint was made, if not ``recipe``.
 
     Returns:
         The policy folder.
@@ -299,39 +111,57 @@ def ship(
     from unigait.client import Client
     from unigait.export import export_mismatch, export_onnx, load_policy
 
-    source = checkpoint_path or run_dir / "model_latest.pt"
+    load_recipe(recipe)  # a card names only recipes that resolve
+    if lineage:
+        load_recipe(lineage)
+    source_dir = run_folder(run_dir)
+    source = checkpoint_path or source_dir / "model_latest.pt"
     folder = out_root / name
-    folder.mkdir(parents=True, exist_ok=True)
-    shutil.copyfile(source, folder / "model.pt")
-    checkpoint = torch.load(source, map_location="cpu", weights_only=False)
-    rows = _log_until(run_dir, folder, int(checkpoint.get("iteration", 0)))
-    if not rows:  # no log to cut: the run's picture as it is, if any
-        for src in ("training_curves.png", "training.png"):
-            if (run_dir / src).exists():
-                shutil.copyfile(run_dir / src, folder / "training.png")
-    policy, dims = load_policy(source)
-    export_onnx(policy, folder / "policy.onnx", dims["history_length"], dims["obs_dim"])
-    diff = export_mismatch(policy, folder / "policy.onnx")
-    if diff > 1e-5:
-        raise RuntimeError(f"the exported graph differs from torch by {diff:.2e} (relative)")
-    onnx = (folder / "policy.onnx").read_bytes()
-    evals: dict[str, dict[str, float]] = {}
-    with Client(addresses[0]) as client:
-        for scenario in MILESTONE_SCENARIOS.get(preset, ("tracking_quad",)):
-            result = client.evaluate(onnx, scenario, num_envs=num_envs, seed=eval_seed)
-            evals[scenario] = dict(sorted(result.metrics.items()))
-    (folder / "eval.json").write_text(json.dumps(evals, indent=2) + "\n")
-    card = model_card(
-        name,
-        preset,
-        checkpoint,
-        evals,
-        rows,
-        _git_commit(Path.cwd()),
-        eval_seed,
-        num_envs,
-        str(run_dir),
-        selection,
-    )
-    (folder / "MODEL_CARD.md").write_text(card)
+    built = out_root / f".{name}.partial"
+    shutil.rmtree(built, ignore_errors=True)
+    (built / "reports").mkdir(parents=True)
+    try:
+        shutil.copyfile(source, built / "model.pt")
+        checkpoint = torch.load(source, map_location="cpu", weights_only=False)
+        rows = _log_until(source_dir, built, int(checkpoint.get("iteration", 0)))
+        if not rows:  # no log to cut: the run's picture as it is, if any
+            for src in ("training_curves.png", "training.png"):
+                if (source_dir / src).exists():
+                    shutil.copyfile(source_dir / src, built / "training.png")
+        policy, dims = load_policy(source)
+        export_onnx(policy, built / "policy.onnx", dims["history_length"], dims["obs_dim"])
+        diff = export_mismatch(policy, built / "policy.onnx")
+        if diff > 1e-5:
+            raise RuntimeError(f"the exported graph differs from torch by {diff:.2e} (relative)")
+        onnx = (built / "policy.onnx").read_bytes()
+        scenarios: list[str] = []
+        for m in milestones:
+            scenarios += [s for s in m.scenarios if s not in scenarios]
+        evals: dict[str, dict[str, float]] = {}
+        with Client(addresses[0]) as client:
+            for scenario in scenarios:
+                result = client.evaluate(onnx, scenario, num_envs=num_envs, seed=eval_seed)
+                evals[scenario] = dict(sorted(result.metrics.items()))
+                report = built / "reports" / f"{scenario}_seed{eval_seed}.json"
+                report.write_text(result.report_json)
+        (built / "eval.json").write_text(json.dumps(evals, indent=2) + "\n")
+        card = CardInputs(
+            name=name,
+            recipe=recipe,
+            lineage=lineage,
+            milestones=milestones,
+            checkpoint=checkpoint,
+            evals=evals,
+            rows=rows,
+            commit=git_commit(),
+            eval_seed=eval_seed,
+            num_envs=num_envs,
+            ship_command=ship_command,
+            selection=selection,
+        )
+        (built / "MODEL_CARD.md").write_text(model_card(card))
+    except BaseException:
+        shutil.rmtree(built, ignore_errors=True)
+        raise
+    _swap_into_place(built, folder)
     return folder

@@ -28,8 +28,7 @@ from typing import Any
 
 import torch
 
-from unigait.client.types import SessionConfig
-from unigait.config import TrainConfig
+from unigait.config import TrainConfig, session_config
 from unigait.env import TorchVecEnv
 from unigait.ray.credentials import ServerCredentials
 from unigait.ray.pool import PoolConfigError, ServerPool, ship_binary_env
@@ -50,18 +49,6 @@ class ResilientRunner(OnPolicyRunner):
         out = super().rollout()
         out["server_restarts"] = float(getattr(self.env.session, "server_restarts", 0))
         return out
-
-
-def session_config(cfg: TrainConfig) -> SessionConfig:
-    """The session config of a training run (reward terms on: the logger needs them)."""
-    return SessionConfig(
-        num_envs=cfg.env.num_envs,
-        seed=cfg.env.seed,
-        task_overrides_toml=cfg.env.task_overrides_toml,
-        terrain=cfg.env.terrain,
-        terrain_level=cfg.env.terrain_level,
-        reward_terms=True,
-    )
 
 
 def train_with_pool(

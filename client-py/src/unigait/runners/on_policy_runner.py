@@ -8,6 +8,7 @@ MSE epochs on the same rollout.
 from __future__ import annotations
 
 import math
+import os
 import shlex
 import time
 from pathlib import Path
@@ -16,7 +17,7 @@ from typing import Any
 import torch
 
 from unigait.algorithms import PPO, EstimatorLearning
-from unigait.config import TrainConfig, same_task
+from unigait.config import TrainConfig, apply, same_task
 from unigait.env import BipedPoseStats, EpisodeStats, ObservationHistory, TorchStep, TorchVecEnv
 from unigait.env.biped_pose import BIPED_MODE
 from unigait.modules import ActorCritic, Estimator, EstimatorActorPolicy
@@ -119,8 +120,10 @@ class OnPolicyRunner:
         self.resumed = False
         #: The resumed checkpoint, and the task overrides and PPO settings it was trained with.
         self.resumed_from = ""
-        self.resumed_task = ""
+        self.resumed_task: dict[str, Any] = {}
         self.resumed_ppo: dict[str, Any] | None = None
+        #: Where these networks come from (recipe, stage, git commit), saved with every checkpoint.
+        self.provenance: dict[str, Any] = {}
         self.timers = Timers()
         self.log_dir = log_dir
         self.logger: TrainLogger | None = None
@@ -286,13 +289,20 @@ class OnPolicyRunner:
             "upright_pitch": self.upright_pitch,
             "config": self.cfg.to_dict(),
             "dims": self.dims,
+            "provenance": dict(self.provenance),
         }
 
     def save(self, path: Path) -> None:
-        """Write a checkpoint (and ``model_latest.pt`` beside it)."""
+        """Write a checkpoint (and ``model_latest.pt`` beside it).
+
+        Each file is written under a temporary name and renamed into place, so a kill during the
+        write leaves the previous file whole.
+        """
         state = self.state_dict()
-        torch.save(state, path)
-        torch.save(state, path.with_name("model_latest.pt"))
+        for target in (path, path.with_name("model_latest.pt")):
+            partial = target.with_name(f".{target.name}.partial")
+            torch.save(state, partial)
+            os.replace(partial, target)
 
     def _check_networks(self, path: str | Path, state: dict[str, Any]) -> None:
         """Refuse, naming every difference, a checkpoint whose networks are not this run's.
@@ -355,7 +365,7 @@ class OnPolicyRunner:
         self.resumed = True
         self.resumed_from = str(path)
         saved = state.get("config", {})
-        self.resumed_task = str(saved.get("env", {}).get("task_overrides_toml", ""))
+        self.resumed_task = apply(TrainConfig(), {"env": saved.get("env", {})}).env.task
         self.resumed_ppo = saved.get("ppo")
         if self.logger is not None:
             self.logger.drop_after(self.iteration)
@@ -371,7 +381,7 @@ class OnPolicyRunner:
         """
         if self.resumed and self.stages:
             same_ppo = self.resumed_ppo is None or self.resumed_ppo == self.cfg.to_dict()["ppo"]
-            if same_ppo and same_task(self.resumed_task, self.cfg.env.task_overrides_toml):
+            if same_ppo and same_task(self.resumed_task, self.cfg.env.task):
                 return
             command = f"{command} --resume {shlex.quote(self.resumed_from)}"
         if not self.stages or self.stages[-1] != command:

@@ -1,0 +1,271 @@
+"""Run a recipe's stages unattended, and carry on where an interrupted run stopped.
+
+A recipe run's log directory holds the recipe as it started (``recipe.toml``, ``run.json``) and
+one folder per stage (``01_upright/``: the stage's ``progress.csv``, checkpoints and, once it has
+ended, ``done.json``). Running the same command again skips the ended stages, resumes the stage
+in progress from its latest checkpoint and goes on.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import sys
+import tempfile
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from unigait.client import Client, ConnectionOptions, open_session
+from unigait.config import TrainConfig, resume_upright_curriculum, session_config
+from unigait.env import TorchVecEnv
+from unigait.milestones import milestone as load_milestone
+from unigait.provenance import git_commit
+from unigait.recipes import Recipe, Stage, stage_config
+from unigait.runners.on_policy_runner import OnPolicyRunner
+
+RECIPE_FILE = "recipe.toml"
+RUN_FILE = "run.json"
+DONE_FILE = "done.json"
+STAGE_FILE = "stage.json"
+
+
+class RecipeRunError(RuntimeError):
+    """A recipe run that cannot start or go on (the message says what to do)."""
+
+
+def _read_json(path: Path) -> dict[str, Any]:
+    return dict(json.loads(path.read_text()))
+
+
+def _write_json(path: Path, value: dict[str, Any]) -> None:
+    partial = path.with_name(f".{path.name}.partial")
+    partial.write_text(json.dumps(value, indent=2) + "\n")
+    partial.replace(path)
+
+
+def prepare_log_dir(
+    recipe: Recipe, sets: Sequence[str], log_dir: Path, overwrite: bool, adopt: bool
+) -> None:
+    """Start ``log_dir`` for ``recipe``, or check that it holds a run of the same recipe.
+
+    Raises:
+        RecipeRunError: The folder holds something else, or the recipe changed since the run
+            started (``adopt`` goes on with the new text; ``overwrite`` starts afresh).
+    """
+    if overwrite and log_dir.exists():
+        shutil.rmtree(log_dir)
+    stored = log_dir / RECIPE_FILE
+    if stored.exists():
+        run = _read_json(log_dir / RUN_FILE) if (log_dir / RUN_FILE).exists() else {}
+        same = stored.read_text() == recipe.text and list(run.get("sets", [])) == list(sets)
+        if not same and not adopt:
+            raise RecipeRunError(
+                f"{log_dir} holds a run of another recipe text or --set list than this one "
+                f"({run.get('recipe', '?')}): give --adopt-recipe to go on with this one (ended "
+                "stages are kept), --overwrite to start afresh, or another --log-dir"
+            )
+    elif log_dir.exists() and any(log_dir.iterdir()):
+        raise RecipeRunError(
+            f"{log_dir} is not empty and holds no recipe run: give another --log-dir or --overwrite"
+        )
+    log_dir.mkdir(parents=True, exist_ok=True)
+    stored.write_text(recipe.text)
+    _write_json(
+        log_dir / RUN_FILE,
+        {"recipe": recipe.name, "source": str(recipe.path), "sets": list(sets)},
+    )
+
+
+def _evaluate_milestone(
+    runner: OnPolicyRunner, stage: Stage, address: str, connection: ConnectionOptions
+) -> tuple[bool, dict[str, Any]]:
+    """Export the current policy and judge it on the stage's milestone and validation seed."""
+    from unigait.export import export_onnx
+
+    rule = stage.stop
+    assert rule.milestone is not None
+    target = load_milestone(rule.milestone)
+    evals: dict[str, dict[str, float]] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        onnx_path = Path(tmp) / "policy.onnx"
+        export_onnx(
+            runner.policy(), onnx_path, runner.dims["history_length"], runner.dims["obs_dim"]
+        )
+        onnx = onnx_path.read_bytes()
+        with Client(address, **connection) as client:
+            for scenario in target.scenarios:
+                result = client.evaluate(
+                    onnx, scenario, num_envs=rule.validation_envs, seed=rule.validation_seed
+                )
+                evals[scenario] = dict(result.metrics)
+    met, margin = target.score(evals)
+    return target.met(evals), {
+        "iteration": runner.iteration,
+        "milestone": target.name,
+        "criteria_met": met,
+        "criteria": target.criteria(),
+        "margin": margin,
+        "seed": rule.validation_seed,
+        "evals": evals,
+    }
+
+
+def _start_checkpoint(stage: Stage, previous_final: Path | None) -> Path | None:
+    if stage.start == "fresh":
+        return None
+    if stage.start == "previous":
+        assert previous_final is not None
+        return previous_final
+    path = Path(stage.start)
+    if not path.is_file():
+        raise RecipeRunError(f"stage {stage.name} starts from {path}, which does not exist")
+    return path
+
+
+def run_stage(
+    recipe: Recipe,
+    stage: Stage,
+    stage_dir: Path,
+    previous_final: Path | None,
+    addresses: Sequence[str],
+    connection: ConnectionOptions,
+    log: Callable[[str], None],
+) -> Path:
+    """Train one stage to its stop rule (resuming its own latest checkpoint if it has one).
+
+    Returns:
+        The stage's final checkpoint.
+    """
+    stage_dir.mkdir(parents=True, exist_ok=True)
+    latest = stage_dir / "model_latest.pt"
+    resuming = latest.exists() and (stage_dir / STAGE_FILE).exists()
+    source = latest if resuming else _start_checkpoint(stage, previous_final)
+    cfg: TrainConfig = stage_config(stage, stage_dir)
+    if source is not None:
+        checkpoint = torch.load(source, map_location="cpu", weights_only=False)
+        cfg = resume_upright_curriculum(cfg, checkpoint)
+    torch.manual_seed(cfg.runner.seed)
+    if cfg.runner.torch_threads > 0:
+        torch.set_num_threads(cfg.runner.torch_threads)
+    session = open_session(list(addresses), session_config(cfg), **connection)
+    env = TorchVecEnv(session, cfg.runner.device)
+    try:
+        runner = OnPolicyRunner(env, cfg, stage_dir)
+        if resuming:
+            runner.load(latest)
+            start_iteration = int(_read_json(stage_dir / STAGE_FILE)["start_iteration"])
+            log(f"stage {stage.dir_name}: resumed at iteration {runner.iteration}")
+        else:
+            if source is not None and stage.carry == "all":
+                runner.load(source)
+            elif source is not None:
+                runner.load_weights(source)
+            start_iteration = runner.iteration
+            _write_json(
+                stage_dir / STAGE_FILE,
+                {
+                    "start_iteration": start_iteration,
+                    "started_from": None if source is None else str(source),
+                    "carry": stage.carry,
+                },
+            )
+        count = len(recipe.stages)
+        line = f"recipe {recipe.name}, stage {stage.index + 1} of {count}: {stage.name}"
+        if not runner.stages or runner.stages[-1] != line:
+            runner.stages.append(line)
+        runner.provenance = {
+            "recipe": recipe.name,
+            "recipe_text": recipe.text,
+            "stage": stage.index + 1,
+            "stage_name": stage.name,
+            "git_commit": git_commit(),
+        }
+        target = start_iteration + stage.stop.iterations
+        rule = stage.stop
+        log(
+            f"stage {stage.dir_name}: {env.num_envs} envs, iterations "
+            f"{runner.iteration + 1}-{target}"
+            + (f", stops early on {rule.milestone}" if rule.milestone else "")
+        )
+        while runner.iteration < target:
+            chunk = target - runner.iteration
+            if rule.milestone:
+                done_in_stage = runner.iteration - start_iteration
+                chunk = min(chunk, rule.check_every - done_in_stage % rule.check_every)
+            runner.learn(chunk)
+            if rule.milestone and (runner.iteration - start_iteration) % rule.check_every == 0:
+                met, record = _evaluate_milestone(runner, stage, addresses[0], connection)
+                with (stage_dir / "validation.jsonl").open("a") as f:
+                    f.write(json.dumps(record) + "\n")
+                log(
+                    f"stage {stage.dir_name}: iteration {runner.iteration}: {record['milestone']} "
+                    f"{record['criteria_met']}/{record['criteria']} on seed {record['seed']}"
+                )
+                if met:
+                    break
+        final = stage_dir / f"model_{runner.iteration}.pt"
+        if not final.exists():  # nothing left to train: the resumed checkpoint is the last one
+            runner.save(final)
+        reason = "iterations"
+        if runner.iteration < target:
+            reason = f"milestone {rule.milestone} met on seed {rule.validation_seed}"
+        _write_json(
+            stage_dir / DONE_FILE,
+            {
+                "final_checkpoint": final.name,
+                "iteration": runner.iteration,
+                "stage_iterations": runner.iteration - start_iteration,
+                "env_steps": runner.total_env_steps,
+                "reason": reason,
+            },
+        )
+        return final
+    finally:
+        env.close()
+
+
+def run_recipe(
+    recipe: Recipe,
+    sets: Sequence[str],
+    log_dir: Path,
+    addresses: Sequence[str],
+    connection: ConnectionOptions,
+    *,
+    overwrite: bool = False,
+    adopt: bool = False,
+    log: Callable[[str], None] = lambda text: print(text, file=sys.stderr),
+) -> Path:
+    """Every stage of ``recipe`` in order, skipping those a previous call ended.
+
+    Returns:
+        The last stage's final checkpoint.
+
+    Raises:
+        RecipeRunError: The recipe does not run at this commit, or the log directory holds
+            something else.
+    """
+    if not recipe.runs_at_head:
+        stale = [s.name for s in recipe.stages if not s.runs_at_head]
+        raise RecipeRunError(
+            f"recipe {recipe.name} records stages that ran on code that no longer exists "
+            f"({', '.join(stale)}): it documents history; train a recipe that runs at this commit"
+        )
+    prepare_log_dir(recipe, sets, log_dir, overwrite, adopt)
+    final: Path | None = None
+    for stage in recipe.stages:
+        stage_dir = log_dir / stage.dir_name
+        done = stage_dir / DONE_FILE
+        if done.exists():
+            final = stage_dir / str(_read_json(done)["final_checkpoint"])
+            log(f"stage {stage.dir_name}: ended before ({final})")
+            continue
+        final = run_stage(recipe, stage, stage_dir, final, addresses, connection, log)
+    assert final is not None
+    latest = log_dir / "final.pt"
+    shutil.copyfile(final, latest.with_name(".final.pt.partial"))
+    latest.with_name(".final.pt.partial").replace(latest)
+    log(f"recipe {recipe.name} done: {latest} (from {final})")
+    return latest

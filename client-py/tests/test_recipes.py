@@ -1,0 +1,259 @@
+"""Recipes as data: loading, resolving, errors, dry runs, stop rules and resumption (fake server).
+
+The kill-and-resume run against the real server is ``tests/test_e2e_recipes.py``.
+"""
+
+import json
+import re
+from pathlib import Path
+
+import pytest
+
+from unigait import milestones as milestones_module
+from unigait.cli import main
+from unigait.recipes import RecipeError, load_recipe, recipe_names
+
+REPO = Path(__file__).resolve().parents[2]
+
+TINY = """
+[stages.env]
+num_envs = 6
+[stages.policy]
+actor_hidden_dims = [16]
+critic_hidden_dims = [16]
+[stages.estimator]
+hidden_dims = [16]
+mini_batch_size = 8
+[stages.runner]
+num_steps_per_env = 4
+save_interval = 1
+plot_interval = 1
+quiet = true
+"""
+
+
+def two_stages(tmp_path: Path, second_stop: str = "iterations = 3") -> Path:
+    path = tmp_path / "two.toml"
+    path.write_text(
+        f"""
+description = "two tiny stages"
+milestone = "M1"
+
+[[stages]]
+name = "first"
+[stages.stop]
+iterations = 2
+{TINY}
+[stages.task.rewards.weights]
+biped_body_contact = -3.0
+
+[[stages]]
+name = "second"
+start = "previous"
+carry = "all"
+[stages.stop]
+{second_stop}
+[stages.ppo]
+entropy_coef = 0.0025
+[stages.task.rewards]
+upright_pitch = 1.45
+"""
+    )
+    return path
+
+
+def test_every_packaged_recipe_resolves_and_dry_runs(capsys):
+    names = recipe_names()
+    assert {"quad_flat", "unified_flat", "unified_flat_lineage", "unified_terrain"} <= set(names)
+    for name in names:
+        assert main(["train", "--recipe", name, "--dry-run"]) == 0, name
+        out = capsys.readouterr().out
+        for stage in load_recipe(name).stages:
+            assert f"stage {stage.index + 1}: {stage.name} [" in out
+    lineage = load_recipe("unified_flat_lineage")
+    assert len(lineage.stages) == 13 and not lineage.runs_at_head
+    assert sum(s.stop.iterations for s in lineage.stages[3:]) == 15500  # the shipped iteration
+    assert [s.name for s in lineage.stages if not s.runs_at_head] == [
+        "head_priced_1",
+        "head_priced_3",
+    ]
+
+
+def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
+    flat = load_recipe("unified_flat")
+    upright, sharpen, settle = flat.stages
+    assert upright.config.env.task["rewards"]["weights"] == {
+        "biped_body_contact": -3.0,
+        "biped_tracking_lin_vel": 4.0,
+    }
+    # The second stage adds a weight and keeps the first stage's.
+    assert sharpen.config.env.task["rewards"]["weights"] == {
+        "biped_body_contact": -3.0,
+        "biped_tracking_lin_vel": 4.0,
+        "biped_sideways_reach": 0.5,
+    }
+    assert sharpen.config.ppo.entropy_coef == 0.0025 and upright.config.ppo.entropy_coef == 0.01
+    assert settle.config.ppo.schedule == "fixed" and settle.config.ppo.learning_rate == 3e-6
+    assert settle.stop.milestone == "M2" and settle.stop.validation_seed == 2000
+    assert list(settle.config.policy.actor_hidden_dims) == [256, 128, 64]
+    # The terrain recipe inherits the flat recipe's last stage and says what it changes.
+    (terrain,) = load_recipe("unified_terrain").stages
+    assert terrain.config.policy == settle.config.policy
+    assert (
+        terrain.config.env.task["rewards"]["weights"]
+        == sharpen.config.env.task["rewards"]["weights"]
+    )
+    assert terrain.config.env.terrain == "curriculum" and terrain.config.env.num_envs == 1024
+    assert terrain.config.ppo.schedule == "adaptive"
+    # --set applies on top of every stage.
+    small = load_recipe("unified_flat", ["env.num_envs=8"])
+    assert [s.config.env.num_envs for s in small.stages] == [8, 8, 8]
+
+
+@pytest.mark.parametrize(
+    ("body", "named"),
+    [
+        ("[stages.ppo]\nentropy = 0.1\n", "'entropy'"),
+        ("[stages.env]\nnum_env = 8\n", "'num_env'"),
+        ("stopp = 3\n", "'stopp'"),
+        ('[stages.env]\ntask_overrides_toml = "[modes]"\n', "[stages.task] tables"),
+        ("[stages.stop]\niterations = 1\nevery = 3\n", "'every'"),
+    ],
+)
+def test_an_unknown_key_is_an_error_naming_the_key_the_stage_and_the_file(tmp_path, body, named):
+    path = tmp_path / "bad.toml"
+    stop = "" if body.startswith("[stages.stop]") else "[stages.stop]\niterations = 1\n"
+    path.write_text(f'[[stages]]\nname = "only"\n{body}{stop}')
+    with pytest.raises(RecipeError) as err:
+        load_recipe(str(path))
+    message = str(err.value)
+    assert named in message and str(path) in message and "stage 1" in message
+
+
+def test_a_recipe_must_say_how_long_and_start_somewhere(tmp_path):
+    path = tmp_path / "r.toml"
+    path.write_text('[[stages]]\nname = "a"\n')
+    with pytest.raises(RecipeError, match="must give iterations"):
+        load_recipe(str(path))
+    path.write_text('[[stages]]\nname = "a"\nstart = "previous"\n[stages.stop]\niterations = 1\n')
+    with pytest.raises(RecipeError, match="no previous stage"):
+        load_recipe(str(path))
+    with pytest.raises(RecipeError, match="unknown recipe 'nope'; packaged recipes"):
+        load_recipe("nope")
+
+
+def test_a_recipe_runs_every_stage_records_it_and_a_second_call_finds_it_done(
+    fake_server, tmp_path, capsys
+):
+    address, servicer = fake_server
+    recipe = two_stages(tmp_path)
+    run = tmp_path / "run"
+    command = ["train", "--server", address, "--recipe", str(recipe), "--log-dir", str(run)]
+    assert main(command) == 0
+    first, second = run / "01_first", run / "02_second"
+    assert json.loads((first / "done.json").read_text())["final_checkpoint"] == "model_2.pt"
+    done = json.loads((second / "done.json").read_text())
+    # carry = "all": the second stage counts on from the first (iterations 3-5).
+    assert done["final_checkpoint"] == "model_5.pt" and done["stage_iterations"] == 3
+    assert done["reason"] == "iterations"
+    # The task went to the server as TOML built from the tables, merged stage by stage.
+    import tomllib
+
+    sent = [tomllib.loads(t) for t in servicer.task_overrides]
+    assert sent[0] == {"rewards": {"weights": {"biped_body_contact": -3.0}}}
+    assert sent[1]["rewards"]["weights"] == {"biped_body_contact": -3.0}
+    assert sent[1]["rewards"]["upright_pitch"] == 1.45
+    # Every checkpoint records the recipe, the stage, the commit and the whole config.
+    import torch
+
+    state = torch.load(second / "model_5.pt", weights_only=False)
+    assert state["provenance"]["recipe"] == "two"
+    assert state["provenance"]["stage"] == 2 and state["provenance"]["stage_name"] == "second"
+    assert state["provenance"]["git_commit"]
+    assert state["config"]["ppo"]["entropy_coef"] == 0.0025
+    assert state["config"]["env"]["task"]["rewards"]["upright_pitch"] == 1.45
+    assert state["stages"] == [
+        "recipe two, stage 1 of 2: first",
+        "recipe two, stage 2 of 2: second",
+    ]
+    assert (run / "final.pt").is_file()
+    # Again: nothing left to train, no session opened.
+    sessions = len(servicer.task_overrides)
+    assert main(command) == 0
+    assert len(servicer.task_overrides) == sessions
+    assert "ended before" in capsys.readouterr().err
+
+
+def test_a_stage_stops_once_its_milestone_is_met_on_the_validation_seed(
+    fake_server, tmp_path, monkeypatch
+):
+    address, servicer = fake_server
+    milestones = tmp_path / "milestones.toml"
+    # The fake server reports num_envs as a metric: met once asked with 5 envs or more.
+    milestones.write_text(
+        """[T]
+description = "test"
+scenarios = ["flat_quad"]
+[[T.checks]]
+label = "envs"
+scenario = "flat_quad"
+metric = "num_envs"
+op = ">="
+bound = 5
+"""
+    )
+    monkeypatch.setattr(milestones_module, "milestones_file", lambda: milestones)
+    stop = 'iterations = 9\nmilestone = "T"\ncheck_every = 2\nvalidation_envs = 5\n'
+    stop += "validation_seed = 77"
+    recipe = two_stages(tmp_path, stop)
+    run = tmp_path / "run"
+    assert main(["train", "--server", address, "--recipe", str(recipe), "--log-dir", str(run)]) == 0
+    done = json.loads((run / "02_second" / "done.json").read_text())
+    assert done["stage_iterations"] == 2 and done["reason"] == "milestone T met on seed 77"
+    assert ("flat_quad", 77, 5) in servicer.evaluated
+    (record,) = [
+        json.loads(x) for x in (run / "02_second" / "validation.jsonl").read_text().split("\n") if x
+    ]
+    assert record["criteria_met"] == 1 and record["iteration"] == 4
+
+
+def test_log_directories_are_not_mixed(fake_server, tmp_path, capsys):
+    address, _ = fake_server
+    recipe = two_stages(tmp_path)
+    busy = tmp_path / "busy"
+    busy.mkdir()
+    (busy / "progress.csv").write_text("iteration\n1\n")
+    command = ["train", "--server", address, "--recipe", str(recipe), "--log-dir", str(busy)]
+    assert main(command) == 2
+    assert "holds no recipe run" in capsys.readouterr().err
+    # A plain run refuses it too, unless told to overwrite.
+    plain = ["train", "--server", address, "--log-dir", str(busy), "--num-envs", "6"]
+    small = ["--set", "runner.num_steps_per_env=4", "--set", "policy.actor_hidden_dims=[16]"]
+    assert main([*plain, *small, "--iterations", "1"]) == 2
+    assert "is not empty" in capsys.readouterr().err
+    assert main([*plain, *small, "--iterations", "1", "--overwrite"]) == 0
+    assert (busy / "model_1.pt").is_file() and not (busy / "progress.csv").read_text().startswith(
+        "iteration\n1\n"
+    )
+    # A recipe run's folder with another recipe text is refused unless adopted.
+    run = tmp_path / "run"
+    assert main(["train", "--server", address, "--recipe", str(recipe), "--log-dir", str(run)]) == 0
+    recipe.write_text(recipe.read_text().replace("iterations = 3", "iterations = 4"))
+    again = ["train", "--server", address, "--recipe", str(recipe), "--log-dir", str(run)]
+    assert main(again) == 2
+    assert "--adopt-recipe" in capsys.readouterr().err
+    # The history recipe does not train.
+    assert main([*again[:4], "unified_flat_lineage", "--log-dir", str(tmp_path / "l")]) == 2
+    assert "no longer exists" in capsys.readouterr().err
+
+
+def test_every_recipe_a_shipped_model_card_names_resolves():
+    cards = sorted((REPO / "assets" / "policies").glob("*/MODEL_CARD.md"))
+    assert cards
+    for card in cards:
+        text = card.read_text()
+        named = set(re.findall(r"--recipe ([\w.-]+)", text))
+        named |= set(re.findall(r"recipe `([\w.-]+)`", text))
+        assert named, f"{card} names no recipe"
+        for name in named:
+            assert load_recipe(name).stages, (card, name)
