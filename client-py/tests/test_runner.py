@@ -201,3 +201,31 @@ def test_rsl_rl_on_policy_runner_on_the_adapter():
     runner = RslOnPolicyRunner(env, cfg, log_dir=None, device="cpu")
     runner.learn(num_learning_iterations=2)
     assert runner.current_learning_iteration == 1
+
+
+class Killed(BaseException):
+    """The process dying mid-write (a BaseException, as SIGKILL would not be caught at all)."""
+
+
+def test_a_kill_during_a_checkpoint_write_leaves_the_previous_checkpoint_whole(
+    tmp_path, monkeypatch
+):
+    cfg = load_config(None, SMALL)
+    runner = OnPolicyRunner(TorchVecEnv(FakeSession(8)), cfg, tmp_path)
+    runner.learn(1)
+    before = torch.load(tmp_path / "model_latest.pt", weights_only=False)
+    real_save = torch.save
+
+    def killed_half_way(obj: object, path: object) -> None:
+        real_save(obj, path)
+        if "model_latest" in str(path):  # dies while writing the latest checkpoint
+            with open(path, "r+b") as f:  # what a kill mid-write leaves: a torn file
+                f.truncate(100)
+            raise Killed
+
+    monkeypatch.setattr(torch, "save", killed_half_way)
+    with pytest.raises(Killed):
+        runner.learn(1)  # iteration 2's save is "killed"
+    monkeypatch.undo()
+    after = torch.load(tmp_path / "model_latest.pt", weights_only=False)
+    assert after["iteration"] == before["iteration"] == 1

@@ -260,6 +260,10 @@ def run_recipe(
         done = stage_dir / DONE_FILE
         if done.exists():
             final = stage_dir / str(_read_json(done)["final_checkpoint"])
+            if not final.exists():
+                # A run folder kept in git holds only the latest checkpoint, which an ended
+                # stage's final one is (runner.save writes both).
+                final = stage_dir / "model_latest.pt"
             log(f"stage {stage.dir_name}: ended before ({final})")
             continue
         final = run_stage(recipe, stage, stage_dir, final, addresses, connection, log)
