@@ -12,7 +12,9 @@ use rand_chacha::ChaCha8Rng;
 use rapier3d::math::{Pose, Rotation, Vec3};
 use unigait_sim::physics::{PhysicsParams, RobotPhysicalParams, RobotState, RobotWorld};
 use unigait_sim::prelude::*;
-use unigait_sim::terrain::{TerrainCollider, TerrainKind, TerrainSpec, TerrainType};
+use unigait_sim::terrain::{
+    EpisodeDistance, TerrainCollider, TerrainKind, TerrainSpec, TerrainType,
+};
 
 /// A curriculum spec whose deterministic spawn tiles cover levels `0..=max_init_level`.
 fn curriculum(max_init_level: u32) -> TerrainSpec {
@@ -174,48 +176,49 @@ fn rest_on_tile(
     assert!(s.max_joint_gap < 5e-3);
 }
 
-/// Climbing across a 0.15 m stair edge (level 5) of both staircases, the front feet 0.2 m onto
-/// the upper tread and the rear feet on the tread below, and climbing a 16.7 deg slope face.
+/// Climbing across a 0.15 m stair edge (level 6) of both staircases, the front feet 0.2 m onto
+/// the upper tread and the rear feet on the tread below, and climbing an 18.5 deg slope face
+/// (level 4).
 #[test]
 fn robots_rest_across_stair_edges_and_on_slopes() {
     use std::f32::consts::PI;
-    let step = TerrainSpec::default().step_height_at(5);
+    let step = TerrainSpec::default().step_height_at(6);
     // Feet 0.448 m apart front to rear, the front ones 0.176 m ahead of the base.
     let lean = (step / 0.448).atan();
     // Stairs down (a hill): from the tile's -x edge inwards is up; the riser at 0.9 m.
     rest_on_tile(
         TerrainType::StairsDown,
-        5,
+        6,
         0.9 + 0.2 - 0.176,
         0.0,
         lean,
         0.02,
     );
     // Stairs up (a pit): outwards is up; facing -x, the riser at 0.9 m.
-    rest_on_tile(TerrainType::StairsUp, 5, 0.9 - 0.2 + 0.176, PI, lean, 0.02);
-    // The hill's -x face at level 5: settling draws the front feet 0.18 m back down the face.
-    let slope = TerrainSpec::default().slope(5).atan();
-    rest_on_tile(TerrainType::SlopeDown, 5, 1.5, 0.0, slope, 0.08);
+    rest_on_tile(TerrainType::StairsUp, 6, 0.9 - 0.2 + 0.176, PI, lean, 0.02);
+    // The hill's -x face at level 4: settling draws the front feet back down the face.
+    let slope = TerrainSpec::default().slope(4).atan();
+    rest_on_tile(TerrainType::SlopeDown, 4, 1.5, 0.0, slope, 0.08);
 }
 
-/// The public queries on a generated grid: a 30 degree face, a stair edge, the highest point
-/// within a radius, determinism.
+/// The public queries on a generated grid: a 30 degree face (level 7), a 0.15 m stair edge
+/// (level 6), the highest point within a radius, determinism.
 #[test]
 fn grid_queries_through_the_terrain() {
     let spec = curriculum(5);
     let terrain = Terrain::from_spec(&spec, 3).expect("terrain");
     let grid = terrain.grid().expect("a grid");
     let column = |t| spec.column_of(t).expect("on the grid") as f32;
-    // Top-level hill, 2 m from the centre along +x: 30 degrees.
+    // Level 7 hill, 2 m from the centre along +x: atan(7/9 tan 37 deg) = 30.37 degrees.
     let (x, y) = (
-        9.0 * 8.0 + 6.0,
+        7.0 * 8.0 + 6.0,
         (column(TerrainType::SlopeDown) + 0.5) * 8.0,
     );
     let tilt = terrain.normal(x, y).z.acos().to_degrees();
-    assert!((tilt - 30.0).abs() < 0.01, "tilt {tilt}");
-    // Level 5 stairs: 0.15 m steps, the third riser 0.9 m in from the tile edge.
+    assert!((tilt - 30.37).abs() < 0.01, "tilt {tilt}");
+    // Level 6 stairs: 0.15 m steps, the third riser 0.9 m in from the tile edge.
     let (x, y) = (
-        5.0 * 8.0 + 0.9,
+        6.0 * 8.0 + 0.9,
         (column(TerrainType::StairsDown) + 0.5) * 8.0,
     );
     let rise = terrain.height(x + 1e-3, y) - terrain.height(x - 1e-3, y);
@@ -234,18 +237,19 @@ fn grid_queries_through_the_terrain() {
     );
 }
 
-/// The curriculum through the public API: up after more than half a tile, down after less than
-/// half the commanded distance, unchanged on flat ground and pinned tiles.
+/// The curriculum through the public API: up after more than 70 % of the commanded distance
+/// (and 2 m), down after less than half of it, unchanged on flat ground and pinned tiles.
 #[test]
 fn curriculum_levels_move_by_the_rule() {
     let mut rng = ChaCha8Rng::seed_from_u64(0);
+    let ep = |walked, commanded| EpisodeDistance { walked, commanded };
     let grid = Terrain::from_spec(&curriculum(5), 0).expect("terrain");
-    assert_eq!(grid.next_level(4, 4.5, 10.0, &mut rng), 5);
-    assert_eq!(grid.next_level(4, 3.0, 10.0, &mut rng), 3);
-    assert_eq!(grid.next_level(4, 3.0, 5.0, &mut rng), 4);
-    assert_eq!(grid.next_level(0, 0.0, 10.0, &mut rng), 0);
-    assert!(grid.next_level(9, 5.0, 0.0, &mut rng) < 10);
-    assert_eq!(Terrain::Flat.next_level(4, 4.5, 10.0, &mut rng), 4);
+    assert_eq!(grid.next_level(4, ep(7.5, 10.0), &mut rng), 5);
+    assert_eq!(grid.next_level(4, ep(4.5, 10.0), &mut rng), 3);
+    assert_eq!(grid.next_level(4, ep(3.0, 5.0), &mut rng), 4);
+    assert_eq!(grid.next_level(0, ep(0.0, 10.0), &mut rng), 0);
+    assert!(grid.next_level(9, ep(5.0, 5.0), &mut rng) < 10);
+    assert_eq!(Terrain::Flat.next_level(4, ep(7.5, 10.0), &mut rng), 4);
     let pinned = TerrainSpec {
         kind: TerrainKind::Pinned {
             terrain_type: TerrainType::StairsUp,
@@ -254,8 +258,61 @@ fn curriculum_levels_move_by_the_rule() {
         ..TerrainSpec::default()
     };
     let pinned = Terrain::from_spec(&pinned, 0).expect("terrain");
-    assert_eq!(pinned.next_level(5, 4.5, 10.0, &mut rng), 5);
+    assert_eq!(pinned.next_level(5, ep(7.5, 10.0), &mut rng), 5);
     assert_eq!(pinned.initial_tile(0, 10, &mut rng), (5, 4));
+}
+
+/// One full episode (18 s) of a standing policy (zero actions) under the training config's
+/// commands, pushes and randomisation, on the curriculum (levels 0-5): no env is promoted.
+/// Envs that end up lying down or standing under a non-zero command are demoted (those above
+/// level 0). `UNIGAIT_CURRICULUM_ENVS` sets the batch (default 32; 1024 for the report).
+#[test]
+fn a_standing_policy_is_never_promoted() {
+    let n: usize = std::env::var("UNIGAIT_CURRICULUM_ENVS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(32);
+    let config = TaskConfig::embedded_default()
+        .with_overrides("[env]\nrandom_initial_episode_step = false")
+        .expect("config");
+    let grid = Terrain::from_spec(&curriculum(5), 1).expect("terrain");
+    let mut env = batch_on(grid, config, n, 1);
+    let start: Vec<u32> = (0..n).map(|i| env.env_state(i).terrain_level).collect();
+    let mut after: Vec<Option<u32>> = vec![None; n];
+    let zeros = vec![0.0; n * NUM_JOINTS];
+    for _ in 0..900 {
+        let dones: Vec<bool> = {
+            let out = env.step(&zeros).expect("step");
+            (0..n)
+                .map(|i| out.terminated[i] != 0 || out.truncated[i] != 0)
+                .collect()
+        };
+        for i in 0..n {
+            if dones[i] && after[i].is_none() {
+                after[i] = Some(env.env_state(i).terrain_level);
+            }
+        }
+    }
+    let ended: Vec<(u32, u32)> = start
+        .iter()
+        .zip(&after)
+        .filter_map(|(&s, a)| a.map(|a| (s, a)))
+        .collect();
+    let up = ended.iter().filter(|(s, a)| a > s).count();
+    let down = ended.iter().filter(|(s, a)| a < s).count();
+    let floor = ended.iter().filter(|(s, _)| *s == 0).count();
+    println!(
+        "{n} envs, {} episodes ended: {up} promoted, {down} demoted, {} kept ({floor} at level 0)",
+        ended.len(),
+        ended.len() - up - down
+    );
+    assert_eq!(
+        ended.len(),
+        n,
+        "every env ends its first episode within 18 s"
+    );
+    assert_eq!(up, 0);
+    assert!(down > 0);
 }
 
 /// The terrain called `name`: `flat`, `trimesh` or `heightfield:<subdivisions>`, on a

@@ -5,6 +5,7 @@ use rand_chacha::ChaCha8Rng;
 
 use crate::robot::NUM_JOINTS;
 use crate::task::{CommandRanges, Randomization, TaskConfig, TaskMode, uniform};
+use crate::terrain::EpisodeDistance;
 
 use super::EnvId;
 
@@ -33,6 +34,8 @@ pub struct EnvState {
     pub terrain_level: u32,
     /// Terrain type (column of the terrain grid).
     pub terrain_type: u32,
+    /// This episode's walked and commanded distances, for the terrain curriculum.
+    pub distance: EpisodeDistance,
 }
 
 /// Draw a command from `ranges`; components below `zero_below` in magnitude become 0.

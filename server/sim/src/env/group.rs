@@ -15,7 +15,7 @@ use crate::task::{
     TaskMode, euler_pitch, gait_coefficients, heading_direction, projected_gravity,
     to_heading_frame, uniform,
 };
-use crate::terrain::Terrain;
+use crate::terrain::{EpisodeDistance, Terrain};
 
 use super::EnvId;
 use super::env_state::EnvState;
@@ -96,6 +96,7 @@ impl EnvGroup {
                     origin: [0.0; 2],
                     terrain_level: 0,
                     terrain_type: 0,
+                    distance: EpisodeDistance::default(),
                 }
             })
             .collect();
@@ -198,16 +199,12 @@ impl EnvGroup {
                     env.terrain_level = level;
                     env.terrain_type = column;
                 } else if previous.is_finite() {
-                    // legged_gym's curriculum: judge the episode that just ended by how far the
-                    // robot got from its spawn point against what its command asked for.
-                    let walked = (previous.base_pos.truncate()
-                        - rapier3d::math::Vec2::from(env.origin))
-                    .length();
-                    let commanded =
-                        (env.command[0].hypot(env.command[1])) * cfg.env.episode_length_s;
+                    // The curriculum judges the episode that just ended by what the robot
+                    // walked along its commands against what they asked for (both integrated
+                    // per step in `step_task`; see terrain::curriculum).
                     env.terrain_level =
                         sh.terrain
-                            .next_level(env.terrain_level, walked, commanded, &mut env.rng);
+                            .next_level(env.terrain_level, env.distance, &mut env.rng);
                 }
                 let o = grid.tile_origin(env.terrain_level, env.terrain_type);
                 (o.x, o.y)
@@ -218,6 +215,7 @@ impl EnvGroup {
         self.world
             .set_robot_state(model, slot, base, linvel, angvel, &q);
         env.origin = [x, y];
+        env.distance = EpisodeDistance::default();
 
         let mode = env.draw_mode(cfg);
         env.enter_mode(cfg, mode, None, true);
@@ -372,6 +370,17 @@ impl EnvGroup {
             let s = &self.states[slot];
             terminated = s.trunk_force > cfg.rewards.contact_threshold;
             truncated = !terminated && self.envs[slot].episode_step >= ctx.max_episode_steps;
+            if sh.terrain.grid().is_some() {
+                let env = &mut self.envs[slot];
+                let v = to_heading_frame(heading_direction(s.base_rot), s.base_linvel);
+                let command = [env.command[0], env.command[1]];
+                let dt = cfg.policy_dt();
+                env.distance.add_step(command, [v.x, v.y], dt);
+                if terminated {
+                    let left = ctx.max_episode_steps.saturating_sub(env.episode_step);
+                    env.distance.add_unlived(command, left as f32 * dt);
+                }
+            }
             let inputs = reward_inputs(
                 sh,
                 &self.envs[slot],

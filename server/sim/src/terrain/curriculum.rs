@@ -1,5 +1,18 @@
-//! legged_gym's game-inspired terrain curriculum as pure functions: which column an env starts
-//! in, and how its level changes between episodes.
+//! The terrain curriculum as pure functions: which column an env starts in, what an episode
+//! walked against what its commands asked for, and how its level changes between episodes.
+//!
+//! legged_gym promotes an env that ended more than half a tile (4 m) from its spawn point and
+//! demotes one that ended less than half of |last command| x episode length away. That fits its
+//! setup (one command per 10 s, mostly straight) and not ours: the mode, and with it the command
+//! (forward or backward, with a yaw rate), is redrawn every 6 s of an 18 s episode. In a Monte
+//! Carlo of our command schedule (2000 episodes, task.toml ranges) a robot that tracks every
+//! command perfectly ends a median 3.3 m from its spawn (2.9 m in all-biped episodes): that rule
+//! promotes it in 38 % of episodes (24 % all-biped) and demotes it in 44 %. Here both distances
+//! are integrated per step instead: the commanded one is the integral of |commanded xy velocity|
+//! (so a biped's slower commands ask for less, and a mode switch is accounted for), the walked
+//! one the integral of the base's velocity along the commanded direction, so perfect tracking
+//! walks exactly what was asked whatever the turns (promoted in 99 % of those episodes, 97 %
+//! all-biped; the rest asked for less than the 2 m minimum).
 
 use rand::{Rng, RngExt};
 
@@ -11,23 +24,65 @@ pub fn initial_column(env_index: usize, num_envs: usize, num_columns: u32) -> u3
     ((env_index.min(n - 1) * columns) / n) as u32
 }
 
-/// The level after an episode (legged_gym's `_update_terrain_curriculum`): up one when the env
-/// walked more than half a tile (`distance_walked > tile_size / 2`), down one when it walked
-/// less than half of what its commands asked for (`distance_walked < commanded_distance * 0.5`)
-/// and is not moving up. Going down stops at level 0; going past the top level sends the env to
-/// a level drawn uniformly from `0..num_levels`, so solved envs keep visiting every level.
-///
-/// `commanded_distance` is |command xy| x episode length (m), as legged_gym.
+/// What one episode walked against what its commands asked for, summed per policy step.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct EpisodeDistance {
+    /// Distance walked along the commanded direction (m): the integral of the base's velocity
+    /// projected on the unit command. Walking against the command counts negative.
+    pub walked: f32,
+    /// Distance the commands asked for (m): the integral of |commanded xy velocity|.
+    pub commanded: f32,
+}
+
+impl EpisodeDistance {
+    /// Add one step of `dt` seconds under the xy command `command` (m/s, heading frame) while
+    /// the base moved at `velocity` (m/s, same frame). A zero command adds nothing.
+    pub fn add_step(&mut self, command: [f32; 2], velocity: [f32; 2], dt: f32) {
+        let speed = command[0].hypot(command[1]);
+        if speed > 0.0 && speed.is_finite() && velocity.iter().all(|v| v.is_finite()) {
+            self.commanded += speed * dt;
+            self.walked += (velocity[0] * command[0] + velocity[1] * command[1]) / speed * dt;
+        }
+    }
+
+    /// An episode that ended early (a fall) is judged on its full length, as legged_gym's
+    /// |command| x episode length: the `seconds` it did not live count as commanded at the last
+    /// command `command` and not walked.
+    pub fn add_unlived(&mut self, command: [f32; 2], seconds: f32) {
+        let speed = command[0].hypot(command[1]);
+        if speed.is_finite() && seconds > 0.0 {
+            self.commanded += speed * seconds;
+        }
+    }
+}
+
+/// When an episode moves its env up or down a level (a [`crate::terrain::TerrainSpec`]'s
+/// `promote_share`, `promote_min_distance` and `demote_share`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LevelRule {
+    /// Up when walked > this x commanded ...
+    pub promote_share: f32,
+    /// ... and walked >= this (m).
+    pub promote_min_distance: f32,
+    /// Down when walked < this x commanded (and not up).
+    pub demote_share: f32,
+}
+
+/// The level after an episode: up one when the env walked more than `promote_share` of the
+/// commanded distance and at least `promote_min_distance`; down one when it walked less than
+/// `demote_share` of it and is not moving up (legged_gym's demotion). Going down stops at level
+/// 0; going past the top level sends the env to a level drawn uniformly from `0..num_levels`, so
+/// solved envs keep visiting every level (legged_gym).
 pub fn next_level(
     current: u32,
-    distance_walked: f32,
-    commanded_distance: f32,
+    episode: EpisodeDistance,
+    rule: &LevelRule,
     num_levels: u32,
-    tile_size: f32,
     rng: &mut impl Rng,
 ) -> u32 {
-    let up = distance_walked > 0.5 * tile_size;
-    let down = !up && distance_walked < 0.5 * commanded_distance;
+    let EpisodeDistance { walked, commanded } = episode;
+    let up = walked > rule.promote_share * commanded && walked >= rule.promote_min_distance;
+    let down = !up && walked < rule.demote_share * commanded;
     if up {
         let next = current.saturating_add(1);
         if next >= num_levels {

@@ -1,45 +1,126 @@
-//! legged_gym's curriculum rule, case by case.
+//! The curriculum rule and the per-step distances, on hand-computed episodes.
 
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use super::*;
 
-const TILE: f32 = 8.0;
+/// The default spec's rule: up above 70 % of the commanded distance and 2 m, down below 50 %.
+const RULE: LevelRule = LevelRule {
+    promote_share: 0.7,
+    promote_min_distance: 2.0,
+    demote_share: 0.5,
+};
 
-#[test]
-fn walking_more_than_half_a_tile_moves_up() {
+const DT: f32 = 0.02;
+/// 18 s at 50 Hz.
+const EPISODE: usize = 900;
+
+fn level_after(current: u32, walked: f32, commanded: f32) -> u32 {
     let mut rng = ChaCha8Rng::seed_from_u64(0);
-    assert_eq!(next_level(3, 4.01, 20.0, 10, TILE, &mut rng), 4);
-    // Moving up wins over moving down (commands asked for far more).
-    assert_eq!(next_level(3, 4.01, 100.0, 10, TILE, &mut rng), 4);
-    // Exactly half a tile is not more than half.
-    assert_eq!(next_level(3, 4.0, 0.0, 10, TILE, &mut rng), 3);
+    next_level(
+        current,
+        EpisodeDistance { walked, commanded },
+        &RULE,
+        10,
+        &mut rng,
+    )
+}
+
+/// `steps` steps of `command` walked at `velocity`.
+fn walk(d: &mut EpisodeDistance, steps: usize, command: [f32; 2], velocity: [f32; 2]) {
+    for _ in 0..steps {
+        d.add_step(command, velocity, DT);
+    }
 }
 
 #[test]
-fn walking_less_than_half_the_commanded_distance_moves_down() {
-    let mut rng = ChaCha8Rng::seed_from_u64(0);
-    assert_eq!(next_level(3, 2.9, 6.0, 10, TILE, &mut rng), 2);
-    assert_eq!(next_level(3, 3.0, 6.0, 10, TILE, &mut rng), 3);
-    // Standing still under a zero command stays.
-    assert_eq!(next_level(3, 0.0, 0.0, 10, TILE, &mut rng), 3);
+fn a_biped_walking_most_of_its_command_is_promoted() {
+    // 0.35 m/s for 18 s under 0.4 m/s: walked 6.3 m of 7.2 m (87.5 % > 70 %, > 2 m).
+    let mut d = EpisodeDistance::default();
+    walk(&mut d, EPISODE, [0.4, 0.0], [0.35, 0.0]);
+    assert!((d.walked - 6.3).abs() < 1e-3, "{d:?}");
+    assert!((d.commanded - 7.2).abs() < 1e-3, "{d:?}");
+    assert_eq!(level_after(3, d.walked, d.commanded), 4);
+    // legged_gym's rule (4 m from the spawn point) promotes it only if it walked straight.
+}
+
+#[test]
+fn reversed_commands_count_in_full() {
+    // Forward 0.4 m/s for 6 s, then backward 0.4 m/s for 6 s, tracked exactly: it ends where it
+    // started (legged_gym would demote it: 0 m < half of 0.4 x 18 s), but walked 4.8 m of 4.8.
+    let mut d = EpisodeDistance::default();
+    walk(&mut d, 300, [0.4, 0.0], [0.4, 0.0]);
+    walk(&mut d, 300, [-0.4, 0.0], [-0.4, 0.0]);
+    assert!((d.walked - 4.8).abs() < 1e-3 && (d.commanded - 4.8).abs() < 1e-3);
+    assert_eq!(level_after(3, d.walked, d.commanded), 4);
+    // Sideways drift does not count; walking against the command counts negative.
+    let mut d = EpisodeDistance::default();
+    walk(&mut d, 100, [0.3, 0.4], [0.8, -0.6]);
+    assert!(d.walked.abs() < 1e-4, "{d:?}");
+    assert!((d.commanded - 1.0).abs() < 1e-4);
+    let mut d = EpisodeDistance::default();
+    walk(&mut d, 100, [0.5, 0.0], [-0.5, 0.0]);
+    assert!((d.walked + 1.0).abs() < 1e-4);
+}
+
+#[test]
+fn standing_does_not_promote() {
+    // A zero command asks for nothing and adds nothing, whatever the body does.
+    let mut d = EpisodeDistance::default();
+    walk(&mut d, EPISODE, [0.0, 0.0], [0.3, 0.0]);
+    assert_eq!(d, EpisodeDistance::default());
+    assert_eq!(level_after(3, d.walked, d.commanded), 3);
+    // An episode that asked for little (1.6 m: mostly standing commands, or cut short) is not
+    // promoted even when tracked well (1.5 m, 94 %): below the 2 m minimum.
+    assert_eq!(level_after(3, 1.5, 1.6), 3);
+    // Standing under a 0.4 m/s command: demoted.
+    let mut d = EpisodeDistance::default();
+    walk(&mut d, EPISODE, [0.4, 0.0], [0.0, 0.0]);
+    assert_eq!(level_after(3, d.walked, d.commanded), 2);
+}
+
+#[test]
+fn walking_a_fifth_of_the_command_is_demoted_and_between_stays() {
+    // 20 % of 7.2 m = 1.44 m < 3.6 m: down.
+    assert_eq!(level_after(3, 1.44, 7.2), 2);
+    // 60 % (4.32 m): neither above 70 % nor below 50 %.
+    assert_eq!(level_after(3, 4.32, 7.2), 3);
+    // A quad at 1 m/s: 13 m of 18 m (72 %) up, 10 m (56 %) stays.
+    assert_eq!(level_after(3, 13.0, 18.0), 4);
+    assert_eq!(level_after(3, 10.0, 18.0), 3);
     // Level 0 is the floor.
-    assert_eq!(next_level(0, 0.0, 10.0, 10, TILE, &mut rng), 0);
+    assert_eq!(level_after(0, 0.0, 10.0), 0);
+}
+
+#[test]
+fn a_fall_is_judged_on_the_full_episode() {
+    // Walked 1.2 m of 1.2 m in 3 s, then fell: the 15 s left count as 6 m asked and not walked,
+    // so 1.2 m of 7.2 m (17 %): down, not up.
+    let mut d = EpisodeDistance::default();
+    walk(&mut d, 150, [0.4, 0.0], [0.4, 0.0]);
+    assert_eq!(level_after(3, d.walked, d.commanded), 3);
+    d.add_unlived([0.4, 0.0], 15.0);
+    assert!((d.commanded - 7.2).abs() < 1e-3);
+    assert_eq!(level_after(3, d.walked, d.commanded), 2);
 }
 
 #[test]
 fn passing_the_top_level_sends_to_a_random_level() {
     let mut rng = ChaCha8Rng::seed_from_u64(0);
+    let up = EpisodeDistance {
+        walked: 5.0,
+        commanded: 5.0,
+    };
     let mut seen = [false; 10];
     for _ in 0..500 {
-        let l = next_level(9, 5.0, 0.0, 10, TILE, &mut rng);
+        let l = next_level(9, up, &RULE, 10, &mut rng);
         assert!(l < 10);
         seen[l as usize] = true;
     }
     assert!(seen.iter().all(|s| *s));
     // Below the top: a plain step up.
-    assert_eq!(next_level(8, 5.0, 0.0, 10, TILE, &mut rng), 9);
+    assert_eq!(next_level(8, up, &RULE, 10, &mut rng), 9);
 }
 
 #[test]

@@ -48,19 +48,25 @@ fn slopes_are_the_analytic_pyramid() {
 }
 
 #[test]
-fn the_top_slope_is_thirty_degrees() {
+fn the_slopes_reach_thirty_degrees_at_level_seven_and_37_at_the_top() {
     let spec = spec();
     let grid = generate(&spec, 3);
     let c = column(&spec, TerrainType::SlopeDown);
     // Mid-way down the +x face, and on the -y face.
-    for (u, v, axis) in [(6.0, 4.3, 0), (3.7, 1.5, 1)] {
-        let (x, y) = at(&spec, 9, c, u, v);
-        let n = grid.normal(x, y);
-        let tilt = n.z.acos().to_degrees();
-        assert!((tilt - 30.0).abs() < 0.01, "tilt {tilt} at ({u}, {v})");
-        // The normal leans away from the centre, downhill.
-        let lean = if axis == 0 { n.x } else { -n.y };
-        assert!(lean > 0.49, "normal {n:?}");
+    // atan(7/9 tan 37 deg) = 30.37 deg; atan(tan 37 deg) = 37 deg.
+    for (level, deg) in [(7, 30.37), (9, 37.0)] {
+        for (u, v, axis) in [(6.0, 4.3, 0), (3.7, 1.5, 1)] {
+            let (x, y) = at(&spec, level, c, u, v);
+            let n = grid.normal(x, y);
+            let tilt = n.z.acos().to_degrees();
+            assert!(
+                (tilt - deg).abs() < 0.01,
+                "level {level}: tilt {tilt} at ({u}, {v})"
+            );
+            // The normal leans away from the centre, downhill: sin(tilt).
+            let lean = if axis == 0 { n.x } else { -n.y };
+            assert!((lean - deg.to_radians().sin()).abs() < 1e-3, "normal {n:?}");
+        }
     }
 }
 
@@ -105,8 +111,8 @@ fn stairs_have_vertical_steps_and_flat_treads() {
             }
         }
     }
-    // The paper's test stairs: 0.15 m at level 5.
-    assert!((spec.step_height_at(5) - 0.15).abs() < 1e-6);
+    // The paper's test stairs: 0.15 m at level 6.
+    assert!((spec.step_height_at(6) - 0.15).abs() < 1e-6);
 }
 
 #[test]

@@ -8,7 +8,7 @@ use rapier3d::prelude::{ColliderBuilder, SharedShape};
 use crate::error::SimError;
 
 use super::cells::CellGrid;
-use super::curriculum::{self, initial_column};
+use super::curriculum::{self, EpisodeDistance, LevelRule, initial_column};
 use super::generator::generate;
 use super::heightfield::heightfield;
 use super::mesh::trimesh;
@@ -188,26 +188,24 @@ impl TerrainGrid {
         }
     }
 
-    /// The level after an episode in which the env walked `distance_walked` (m) from its spawn
-    /// point under commands worth `commanded_distance` (m): legged_gym's rule for a curriculum
-    /// ([`curriculum::next_level`]), unchanged for a pinned or flat kind.
-    pub fn next_level(
-        &self,
-        current: u32,
-        distance_walked: f32,
-        commanded_distance: f32,
-        rng: &mut impl Rng,
-    ) -> u32 {
+    /// The level after `episode` (what the env walked against what its commands asked for):
+    /// [`curriculum::next_level`] with the spec's rule for a curriculum, unchanged for a pinned
+    /// or flat kind.
+    pub fn next_level(&self, current: u32, episode: EpisodeDistance, rng: &mut impl Rng) -> u32 {
         match self.spec.kind {
-            TerrainKind::Curriculum { .. } => curriculum::next_level(
-                current,
-                distance_walked,
-                commanded_distance,
-                self.num_levels(),
-                self.spec.tile_size,
-                rng,
-            ),
+            TerrainKind::Curriculum { .. } => {
+                curriculum::next_level(current, episode, &self.level_rule(), self.num_levels(), rng)
+            }
             TerrainKind::Flat | TerrainKind::Pinned { .. } => current,
+        }
+    }
+
+    /// The spec's promotion and demotion thresholds.
+    pub fn level_rule(&self) -> LevelRule {
+        LevelRule {
+            promote_share: self.spec.promote_share,
+            promote_min_distance: self.spec.promote_min_distance,
+            demote_share: self.spec.demote_share,
         }
     }
 }

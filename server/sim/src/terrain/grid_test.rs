@@ -5,6 +5,10 @@ use rand_chacha::ChaCha8Rng;
 
 use super::*;
 
+fn walked(walked: f32, commanded: f32) -> EpisodeDistance {
+    EpisodeDistance { walked, commanded }
+}
+
 fn grid(kind: TerrainKind) -> TerrainGrid {
     let spec = TerrainSpec {
         kind,
@@ -30,19 +34,20 @@ fn tile_origins_are_tile_centres_at_the_platform_height() {
             assert!((o.z - g.max_height_within(o.x, o.y, 0.6)).abs() < 1e-5);
         }
     }
+    // Eight 0.20 m steps up to (or down into) the top level's platform.
     let stairs = spec.column_of(TerrainType::StairsDown).expect("stairs");
-    assert!((g.tile_origin(9, stairs).z - 8.0 * 0.23).abs() < 1e-5);
+    assert!((g.tile_origin(9, stairs).z - 8.0 * 0.20).abs() < 1e-5);
     let pit = spec.column_of(TerrainType::StairsUp).expect("stairs");
-    assert!((g.tile_origin(9, pit).z + 8.0 * 0.23).abs() < 1e-5);
+    assert!((g.tile_origin(9, pit).z + 8.0 * 0.20).abs() < 1e-5);
     // Out of range: clamped.
-    assert_eq!(g.tile_origin(50, 50), g.tile_origin(9, 6));
+    assert_eq!(g.tile_origin(50, 50), g.tile_origin(9, 19));
 }
 
 #[test]
 fn curriculum_envs_fill_columns_in_blocks_at_random_levels_up_to_the_max() {
     let g = grid(TerrainKind::Curriculum { max_init_level: 3 });
     let mut rng = ChaCha8Rng::seed_from_u64(0);
-    let n = 70;
+    let n = 200;
     let mut seen = [false; 4];
     for i in 0..n {
         let (level, column) = g.initial_tile(i, n, &mut rng);
@@ -56,10 +61,10 @@ fn curriculum_envs_fill_columns_in_blocks_at_random_levels_up_to_the_max() {
 #[test]
 fn deterministic_tiles_cover_every_starting_tile() {
     let g = grid(TerrainKind::Curriculum { max_init_level: 9 });
-    let mut tiles: Vec<(u32, u32)> = (0..70).map(|i| g.deterministic_tile(i, 70)).collect();
+    let mut tiles: Vec<(u32, u32)> = (0..200).map(|i| g.deterministic_tile(i, 200)).collect();
     tiles.sort();
     tiles.dedup();
-    assert_eq!(tiles.len(), 70);
+    assert_eq!(tiles.len(), 200);
 }
 
 #[test]
@@ -69,20 +74,23 @@ fn pinned_envs_stay_on_their_tile() {
         level: 5,
     });
     let mut rng = ChaCha8Rng::seed_from_u64(0);
+    // Stairs up are columns 4-10 of the default grid: the first one.
     assert_eq!(g.initial_tile(17, 100, &mut rng), (5, 4));
     assert_eq!(g.deterministic_tile(17, 100), (5, 4));
-    assert_eq!(g.next_level(5, 100.0, 0.0, &mut rng), 5);
-    assert_eq!(g.next_level(5, 0.0, 100.0, &mut rng), 5);
+    assert_eq!(g.next_level(5, walked(100.0, 10.0), &mut rng), 5);
+    assert_eq!(g.next_level(5, walked(0.0, 100.0), &mut rng), 5);
 }
 
 #[test]
 fn curriculum_grids_move_levels_pinned_and_flat_do_not() {
     let mut rng = ChaCha8Rng::seed_from_u64(0);
     let g = grid(TerrainKind::Curriculum { max_init_level: 5 });
-    assert_eq!(g.next_level(3, 5.0, 0.0, &mut rng), 4);
-    assert_eq!(g.next_level(3, 1.0, 10.0, &mut rng), 2);
+    // The spec's default rule: up above 70 % and 2 m, down below 50 %.
+    assert_eq!(g.next_level(3, walked(7.5, 10.0), &mut rng), 4);
+    assert_eq!(g.next_level(3, walked(6.0, 10.0), &mut rng), 3);
+    assert_eq!(g.next_level(3, walked(1.0, 10.0), &mut rng), 2);
     let flat = grid(TerrainKind::Flat);
-    assert_eq!(flat.next_level(3, 5.0, 0.0, &mut rng), 3);
+    assert_eq!(flat.next_level(3, walked(7.5, 10.0), &mut rng), 3);
     assert_eq!(flat.initial_tile(3, 10, &mut rng), (0, 0));
 }
 

@@ -23,9 +23,11 @@ use rapier3d::prelude::{ColliderBuilder, SharedShape};
 
 use crate::error::SimError;
 
-pub use curriculum::{initial_column, next_level};
+pub use curriculum::{EpisodeDistance, LevelRule, initial_column, next_level};
 pub use grid::TerrainGrid;
-pub use spec::{TerrainCollider, TerrainKind, TerrainSpec, TerrainType};
+pub use spec::{
+    DEFAULT_COLUMNS, TerrainCollider, TerrainKind, TerrainSpec, TerrainType, default_columns,
+};
 
 /// A terrain shared by every robot of a world.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -124,17 +126,11 @@ impl Terrain {
         }
     }
 
-    /// The level after an episode (see [`TerrainGrid::next_level`]); unchanged on flat ground.
-    pub fn next_level(
-        &self,
-        current: u32,
-        distance_walked: f32,
-        commanded_distance: f32,
-        rng: &mut impl Rng,
-    ) -> u32 {
+    /// The level after `episode` (see [`TerrainGrid::next_level`]); unchanged on flat ground.
+    pub fn next_level(&self, current: u32, episode: EpisodeDistance, rng: &mut impl Rng) -> u32 {
         match self {
             Terrain::Flat => current,
-            Terrain::Grid(g) => g.next_level(current, distance_walked, commanded_distance, rng),
+            Terrain::Grid(g) => g.next_level(current, episode, rng),
         }
     }
 }

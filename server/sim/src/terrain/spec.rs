@@ -26,7 +26,8 @@ pub enum TerrainType {
 }
 
 impl TerrainType {
-    /// Every type, in the default column order.
+    /// Every type (the order of names in configs and logs; not the grid's column order, which
+    /// is [`TerrainSpec::types`]).
     pub const ALL: [TerrainType; 7] = [
         TerrainType::Flat,
         TerrainType::SlopeUp,
@@ -127,7 +128,8 @@ pub struct TerrainSpec {
     pub horizontal_scale: f32,
     /// Side of the flat square at every tile's centre, where envs spawn (m).
     pub platform_size: f32,
-    /// Slope angle at the top level (deg); the angle grows linearly with d from 0.
+    /// Slope angle at the top level (deg). The slope (rise over run) grows linearly with d from
+    /// 0, as legged_gym's `slope = 0.4 d`, so level l has atan(d tan(max_slope_deg)).
     pub max_slope_deg: f32,
     /// Step height at level 0 and at the top level (m).
     pub step_height: [f32; 2],
@@ -148,6 +150,41 @@ pub struct TerrainSpec {
     pub rough_noise_spacing: f32,
     /// Collider representation.
     pub collider: TerrainCollider,
+    /// Promotion: an env moves up a level when it walked more than this share of the distance
+    /// its commands asked for (see [`crate::terrain::next_level`]).
+    pub promote_share: f32,
+    /// Promotion also needs at least this much walked (m), so that an episode of standing
+    /// commands, or one cut short after a few steps, does not promote.
+    pub promote_min_distance: f32,
+    /// Demotion: an env moves down a level when it walked less than this share of the commanded
+    /// distance (legged_gym: 0.5).
+    pub demote_share: f32,
+}
+
+/// The default grid columns: legged_gym's `terrain_proportions` [0.1, 0.1, 0.35, 0.25, 0.2]
+/// (smooth slope, rough slope, stairs up, stairs down, discrete) over its 20 columns. Stairs take
+/// 12 of 20 columns (60 %); the former default, one column per type, gave them 2 of 7 (29 %),
+/// which starved the terrain the paper tests most (Table VI: 15 cm stairs up and down, 12 cm
+/// stairs up). No flat column: level 0 of every type is flat or nearly so (0 deg, 5 cm steps).
+pub const DEFAULT_COLUMNS: [(TerrainType, usize); 6] = [
+    // Smooth slope 0.1: half pits (uphill away from the centre), half hills, as legged_gym.
+    (TerrainType::SlopeUp, 1),
+    (TerrainType::SlopeDown, 1),
+    // Rough slope 0.1.
+    (TerrainType::RoughSlope, 2),
+    // Stairs up 0.35, stairs down 0.25.
+    (TerrainType::StairsUp, 7),
+    (TerrainType::StairsDown, 5),
+    // Discrete obstacles 0.2.
+    (TerrainType::Obstacles, 4),
+];
+
+/// [`DEFAULT_COLUMNS`] expanded: one entry per grid column, in order.
+pub fn default_columns() -> Vec<TerrainType> {
+    DEFAULT_COLUMNS
+        .iter()
+        .flat_map(|&(t, n)| std::iter::repeat_n(t, n))
+        .collect()
 }
 
 impl Default for TerrainSpec {
@@ -157,8 +194,8 @@ impl Default for TerrainSpec {
             kind: TerrainKind::Flat,
             // 10 levels (legged_gym num_rows).
             num_levels: 10,
-            // All seven types, one column each.
-            types: TerrainType::ALL.to_vec(),
+            // legged_gym's proportions over 20 columns (see DEFAULT_COLUMNS).
+            types: default_columns(),
             // 8 m (legged_gym terrain_length / terrain_width).
             tile_size: 8.0,
             // 25 m (legged_gym border_size); costs the mesh only four rectangles.
@@ -167,11 +204,15 @@ impl Default for TerrainSpec {
             horizontal_scale: 0.1,
             // 3 m (legged_gym platform_size).
             platform_size: 3.0,
-            // 30 deg at the top level (the paper's test slope); level 6 of 10 is 20 deg.
-            max_slope_deg: 30.0,
-            // [0.05, 0.23] m: legged_gym's 0.05 + 0.18 d with d reaching 1; 0.15 m (the paper's
-            // test stairs) at level 5 of 10.
-            step_height: [0.05, 0.23],
+            // 37 deg at the top (tan 0.754), slope linear in d: level 7 (d = 7/9) is 30.4 deg,
+            // the paper's 30 deg test slope (Table VI, quad and biped), with two levels beyond it
+            // (8: 33.8, 9: 37.0). Before: 30 deg linear in angle, so 30 deg only at the top.
+            max_slope_deg: 37.0,
+            // [0.05, 0.20] m (legged_gym 0.05 + 0.18 d reaches 0.21 at its top d = 0.9): 0.15 m,
+            // the paper's stairs (quad up/down, biped down), at level 6 (d = 2/3), 0.117 / 0.133 m
+            // (biped's 12 cm up) at levels 4 / 5, and 0.167 / 0.183 / 0.20 m above. Before:
+            // [0.05, 0.23], with 0.15 m at level 5 and the top 8 cm beyond the test stairs.
+            step_height: [0.05, 0.20],
             // 0.31 m (legged_gym), 0.30 m after rounding to 0.1 m cells (as in legged_gym).
             step_width: 0.31,
             // [0.05, 0.25] m: legged_gym's 0.05 + 0.2 d with d reaching 1.
@@ -188,6 +229,15 @@ impl Default for TerrainSpec {
             rough_noise_spacing: 0.2,
             // Triangle mesh with vertical step faces.
             collider: TerrainCollider::Trimesh,
+            // 0.7: the shipped flat policy tracks a biped's 0.4 m/s command ~0.1 m/s short
+            // (~75 %), so it promotes on terrain it walks as on flat ground; one that slows
+            // below 70 % stays, below 50 % (demote_share) goes down.
+            promote_share: 0.7,
+            // 2 m: past the 1.5 m from the spawn to the platform's edge, i.e. onto the tile's
+            // terrain; a biped at a typical 0.3 m/s covers it in 7 s of its 18 s episode.
+            promote_min_distance: 2.0,
+            // 0.5, as legged_gym.
+            demote_share: 0.5,
         }
     }
 }
@@ -240,11 +290,9 @@ impl TerrainSpec {
         }
     }
 
-    /// Slope (rise over run) of the slope tiles at `level`.
+    /// Slope (rise over run) of the slope tiles at `level`: d tan(max_slope_deg).
     pub fn slope(&self, level: u32) -> f32 {
-        (self.max_slope_deg * self.difficulty(level))
-            .to_radians()
-            .tan()
+        self.difficulty(level) * self.max_slope_deg.to_radians().tan()
     }
 
     /// Step height of the stair tiles at `level` (m).
@@ -345,6 +393,14 @@ impl TerrainSpec {
             self.rough_noise_spacing,
             self.horizontal_scale,
             self.tile_size,
+        )?;
+        check_range("promote_share", self.promote_share, 0.0, 1.0)?;
+        check_range("demote_share", self.demote_share, 0.0, self.promote_share)?;
+        check_range(
+            "promote_min_distance",
+            self.promote_min_distance,
+            0.0,
+            1000.0,
         )?;
         if let TerrainCollider::Heightfield { subdivisions } = self.collider
             && !(1..=8).contains(&subdivisions)

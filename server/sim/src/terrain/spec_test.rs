@@ -10,11 +10,83 @@ fn defaults_are_valid_and_reach_the_papers_test_terrain() {
     assert_eq!(s.cells_per_tile(), 80);
     assert_eq!(s.step_cells(), 3);
     assert_eq!(s.platform_cells(), 30);
-    assert!((s.slope(9).atan().to_degrees() - 30.0).abs() < 1e-4);
     assert_eq!(s.slope(0), 0.0);
-    assert!((s.step_height_at(5) - 0.15).abs() < 1e-6);
-    assert!((s.step_height_at(9) - 0.23).abs() < 1e-6);
+    assert!((s.slope(9).atan().to_degrees() - 37.0).abs() < 1e-4);
+    assert!((s.step_height_at(9) - 0.20).abs() < 1e-6);
     assert!((s.obstacle_height_at(9) - 0.25).abs() < 1e-6);
+    assert_eq!(
+        (s.promote_share, s.promote_min_distance, s.demote_share),
+        (0.7, 2.0, 0.5)
+    );
+}
+
+/// The level at which each of the paper's Table VI terrains is first met, before (one column per
+/// type, 30 deg linear in angle, steps [0.05, 0.23] m) and after; printed with `--nocapture`.
+#[test]
+fn table_vi_terrains_come_before_the_top_level() {
+    let before = TerrainSpec {
+        types: TerrainType::ALL.to_vec(),
+        max_slope_deg: 30.0,
+        step_height: [0.05, 0.23],
+        ..TerrainSpec::default()
+    };
+    let after = TerrainSpec::default();
+    // The old slope rule: the angle linear in d.
+    let old_deg = |l: u32| 30.0 * before.difficulty(l);
+    let new_deg = |l: u32| after.slope(l).atan().to_degrees();
+    println!("level | step before / after (m) | slope before / after (deg)");
+    for l in 0..10 {
+        println!(
+            "{l:5} | {:.3} / {:.3} | {:.1} / {:.1}",
+            before.step_height_at(l),
+            after.step_height_at(l),
+            old_deg(l),
+            new_deg(l)
+        );
+    }
+    let first = |ok: &dyn Fn(u32) -> bool| (0..10).find(|&l| ok(l));
+    // 15 cm stairs: level 5 before, level 6 after (exactly 0.15 m), with 0.20 m at the top.
+    assert_eq!(first(&|l| before.step_height_at(l) >= 0.15 - 1e-6), Some(5));
+    assert_eq!(first(&|l| after.step_height_at(l) >= 0.15 - 1e-6), Some(6));
+    // 12 cm (the biped's stairs up): level 4 before (0.13 m), level 5 after (0.133 m).
+    assert_eq!(first(&|l| after.step_height_at(l) >= 0.12), Some(5));
+    // 30 deg: only the top level before; level 7 after (30.4 deg), 37 deg at the top.
+    assert_eq!(first(&|l| old_deg(l) >= 30.0 - 1e-4), Some(9));
+    assert_eq!(first(&|l| new_deg(l) >= 30.0), Some(7));
+    assert!((new_deg(7) - 30.37).abs() < 0.01);
+    assert!((new_deg(8) - 33.81).abs() < 0.01);
+}
+
+/// Stairs (up + down) take 60 % of the default columns (legged_gym's 0.35 + 0.25), against
+/// 2 of 7 (29 %) with one column per type.
+#[test]
+fn default_columns_follow_legged_gyms_proportions() {
+    let cols = TerrainSpec::default().types;
+    assert_eq!(cols.len(), 20);
+    let share = |ts: &[TerrainType]| {
+        cols.iter().filter(|t| ts.contains(t)).count() as f32 / cols.len() as f32
+    };
+    let stairs = [TerrainType::StairsUp, TerrainType::StairsDown];
+    assert_eq!(share(&[TerrainType::SlopeUp, TerrainType::SlopeDown]), 0.1);
+    assert_eq!(share(&[TerrainType::RoughSlope]), 0.1);
+    assert_eq!(share(&[TerrainType::StairsUp]), 0.35);
+    assert_eq!(share(&[TerrainType::StairsDown]), 0.25);
+    assert_eq!(share(&[TerrainType::Obstacles]), 0.2);
+    assert_eq!(share(&stairs), 0.6);
+    let old = TerrainType::ALL;
+    let old_stairs = old.iter().filter(|t| stairs.contains(t)).count();
+    assert_eq!((old_stairs, old.len()), (2, 7));
+    println!(
+        "stairs: {:.0} % of columns before, {:.0} % after",
+        100.0 * old_stairs as f32 / old.len() as f32,
+        100.0 * share(&stairs)
+    );
+    // Same type, contiguous columns: the first of each is where DEFAULT_COLUMNS puts it.
+    let spec = TerrainSpec::default();
+    assert_eq!(spec.column_of(TerrainType::StairsUp), Some(4));
+    assert_eq!(spec.column_of(TerrainType::StairsDown), Some(11));
+    assert_eq!(spec.column_of(TerrainType::Obstacles), Some(16));
+    assert_eq!(spec.column_of(TerrainType::Flat), None);
 }
 
 #[test]
@@ -132,6 +204,28 @@ fn bad_values_are_rejected_with_their_field() {
             ..d()
         },
         "terrain.platform_size",
+    );
+    rejected(
+        TerrainSpec {
+            promote_share: 1.5,
+            ..d()
+        },
+        "terrain.promote_share",
+    );
+    // Demoting above the promotion share would move an env both ways.
+    rejected(
+        TerrainSpec {
+            demote_share: 0.8,
+            ..d()
+        },
+        "terrain.demote_share",
+    );
+    rejected(
+        TerrainSpec {
+            promote_min_distance: -1.0,
+            ..d()
+        },
+        "terrain.promote_min_distance",
     );
     rejected(
         TerrainSpec {
