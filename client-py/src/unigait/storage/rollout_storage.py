@@ -103,6 +103,11 @@ class MiniBatch:
 class RolloutStorage:
     """Fixed-size buffer of one rollout.
 
+    Every per-sample field the learners read is a column block of one ``[T, N, width]`` tensor
+    (labels first, then the actor input, so the estimator's inputs are one leading block): an
+    epoch's shuffle is then one row gather into a buffer kept between updates, and its
+    mini-batches are row slices of that buffer, not nine fresh gathers per mini-batch.
+
     Args:
         num_steps: T steps per env.
         num_envs: N.
@@ -128,22 +133,42 @@ class RolloutStorage:
         self.num_steps = num_steps
         self.num_envs = num_envs
         self.history_dim = history_dim
-
-        def z(*shape: int) -> torch.Tensor:
-            return torch.zeros(num_steps, num_envs, *shape, device=device)
-
-        self.actor_obs = z(actor_obs_dim)
-        self.critic_obs = z(critic_obs_dim)
-        self.labels = z(label_dim)
-        self.actions = z(num_actions)
-        self.log_prob = z()
-        self.mu = z(num_actions)
-        self.sigma = z(num_actions)
-        self.values = z()
-        self.rewards = z()
-        self.dones = z()
-        self.advantages = z()
-        self.returns = z()
+        self.label_dim = label_dim
+        widths = {
+            "labels": label_dim,
+            "actor_obs": actor_obs_dim,
+            "critic_obs": critic_obs_dim,
+            "actions": num_actions,
+            "mu": num_actions,
+            "sigma": num_actions,
+            "log_prob": 1,
+            "values": 1,
+            "advantages": 1,
+            "returns": 1,
+        }
+        self._cols: dict[str, slice] = {}
+        width = 0
+        for name, w in widths.items():
+            self._cols[name] = slice(width, width + w)
+            width += w
+        #: f32 [T, N, width]: every field below is a view of it.
+        self.data = torch.zeros(num_steps, num_envs, width, device=device)
+        self.labels = self.data[..., self._cols["labels"]]
+        self.actor_obs = self.data[..., self._cols["actor_obs"]]
+        self.critic_obs = self.data[..., self._cols["critic_obs"]]
+        self.actions = self.data[..., self._cols["actions"]]
+        self.mu = self.data[..., self._cols["mu"]]
+        self.sigma = self.data[..., self._cols["sigma"]]
+        self.log_prob = self.data[..., self._cols["log_prob"].start]
+        self.values = self.data[..., self._cols["values"].start]
+        self.advantages = self.data[..., self._cols["advantages"].start]
+        self.returns = self.data[..., self._cols["returns"].start]
+        self.rewards = torch.zeros(num_steps, num_envs, device=device)
+        self.dones = torch.zeros(num_steps, num_envs, device=device)
+        # Shuffled copies, allocated at the first update and refilled in place each epoch (a
+        # fresh tensor of this size costs more in page faults than the gather itself).
+        self._ppo_shuffled: torch.Tensor | None = None
+        self._estimator_shuffled: torch.Tensor | None = None
         self.step = 0
 
     def add(
@@ -187,56 +212,78 @@ class RolloutStorage:
         self, last_values: torch.Tensor, gamma: float, lam: float, normalize: bool = True
     ) -> None:
         """GAE over the stored rollout; advantages normalised over the whole batch if asked."""
-        adv, self.returns = compute_gae(
-            self.rewards, self.values, self.dones, last_values, gamma, lam
-        )
+        adv, returns = compute_gae(self.rewards, self.values, self.dones, last_values, gamma, lam)
         if normalize:
             adv = (adv - adv.mean()) / (adv.std() + 1e-8)
-        self.advantages = adv
+        self.returns.copy_(returns)
+        self.advantages.copy_(adv)
+
+    @staticmethod
+    def _shuffle_into(
+        buffer: torch.Tensor | None, source: torch.Tensor, perm: torch.Tensor
+    ) -> torch.Tensor:
+        """``source[perm]`` written into ``buffer`` (allocated when missing or of another size)."""
+        if buffer is None or buffer.shape != source.shape:
+            buffer = torch.empty_like(source, memory_format=torch.contiguous_format)
+        return torch.index_select(source, 0, perm, out=buffer)
 
     def mini_batches(self, num_mini_batches: int, num_epochs: int) -> Iterator[MiniBatch]:
-        """Random mini-batches over ``num_epochs`` passes (a fresh permutation per epoch)."""
+        """Random mini-batches over ``num_epochs`` passes (a fresh permutation per epoch).
+
+        Mini-batch i of an epoch is the samples ``perm[i * B : (i + 1) * B]`` with
+        ``B = T * N // num_mini_batches`` (samples past ``num_mini_batches * B`` sit the epoch
+        out). Its tensors are views of a buffer that the next epoch's shuffle overwrites: use a
+        mini-batch before asking for the one after it (PPO's loop does).
+        """
         n = self.num_steps * self.num_envs
         size = n // num_mini_batches
-        flat = {
-            name: getattr(self, name).flatten(0, 1)
-            for name in (
-                "actor_obs",
-                "critic_obs",
-                "actions",
-                "log_prob",
-                "mu",
-                "sigma",
-                "values",
-                "advantages",
-                "returns",
-            )
-        }
+        # Every column but the labels (the leading block), which PPO does not read.
+        first = self._cols["actor_obs"].start
+        source = self.data.view(n, -1)[:, first:]
+
+        def cols(rows: torch.Tensor, name: str) -> torch.Tensor:
+            c = self._cols[name]
+            return rows[:, c.start - first : c.stop - first]
+
+        def col(rows: torch.Tensor, name: str) -> torch.Tensor:
+            return rows[:, self._cols[name].start - first]
+
         for _ in range(num_epochs):
-            perm = torch.randperm(n, device=self.actor_obs.device)
+            perm = torch.randperm(n, device=self.data.device)
+            shuffled = self._shuffle_into(self._ppo_shuffled, source, perm)
+            self._ppo_shuffled = shuffled
             for i in range(num_mini_batches):
-                idx = perm[i * size : (i + 1) * size]
+                rows = shuffled[i * size : (i + 1) * size]
                 yield MiniBatch(
-                    actor_obs=flat["actor_obs"][idx],
-                    critic_obs=flat["critic_obs"][idx],
-                    actions=flat["actions"][idx],
-                    old_log_prob=flat["log_prob"][idx],
-                    old_mu=flat["mu"][idx],
-                    old_sigma=flat["sigma"][idx],
-                    old_values=flat["values"][idx],
-                    advantages=flat["advantages"][idx],
-                    returns=flat["returns"][idx],
+                    actor_obs=cols(rows, "actor_obs"),
+                    critic_obs=cols(rows, "critic_obs"),
+                    actions=cols(rows, "actions"),
+                    old_log_prob=col(rows, "log_prob"),
+                    old_mu=cols(rows, "mu"),
+                    old_sigma=cols(rows, "sigma"),
+                    old_values=col(rows, "values"),
+                    advantages=col(rows, "advantages"),
+                    returns=col(rows, "returns"),
                 )
 
     def estimator_batches(
         self, batch_size: int, num_epochs: int
     ) -> Iterator[tuple[torch.Tensor, torch.Tensor]]:
-        """(history f32 [B, 159], labels f32 [B, 14]) mini-batches of ``batch_size`` samples."""
-        history = self.actor_obs[..., : self.history_dim].flatten(0, 1)
-        labels = self.labels.flatten(0, 1)
-        n = history.shape[0]
+        """(history f32 [B, 159], labels f32 [B, 14]) mini-batches of ``batch_size`` samples.
+
+        Batch k of an epoch is the samples ``perm[k * B : (k + 1) * B]``, as many whole batches
+        as fit (one batch of every sample when there are fewer than ``batch_size``). The tensors
+        are views of a buffer that the next epoch's shuffle overwrites, as in
+        :meth:`mini_batches`.
+        """
+        n = self.num_steps * self.num_envs
+        # Labels then the history: one leading column block.
+        history_end = self._cols["actor_obs"].start + self.history_dim
+        source = self.data.view(n, -1)[:, :history_end]
         for _ in range(num_epochs):
-            perm = torch.randperm(n, device=history.device)
+            perm = torch.randperm(n, device=self.data.device)
+            shuffled = self._shuffle_into(self._estimator_shuffled, source, perm)
+            self._estimator_shuffled = shuffled
             for start in range(0, n - batch_size + 1 if n >= batch_size else 1, batch_size):
-                idx = perm[start : start + batch_size]
-                yield history[idx], labels[idx]
+                rows = shuffled[start : start + batch_size]
+                yield rows[:, self.label_dim :], rows[:, : self.label_dim]
