@@ -34,7 +34,7 @@ cone or 10 no-slip iterations) and the targets are the same at the same physics 
 figures too (8 substeps instead of 2: forward trot 0.25 instead of 0.28 m/s).
 
 ``python tests/test_mujoco_crosscheck.py [ARMATURE]`` prints the table (ours, MuJoCo with its own
-armature and with link armature, ratios, tolerance, pass/xfail/FAIL) for the README.
+armature and with link armature, ratios, tolerance, pass/xfail/FAIL) for docs/src/mujoco.md.
 """
 
 from __future__ import annotations

@@ -205,7 +205,8 @@ fn a_weighted_body_contact_term_prices_the_biped_head_rest() {
 }
 
 /// A robot resting on its head alone gets the extra solver iterations of a fallen robot, unless
-/// `physics.extra_iterations_on_head_contact` turns that off (README: measured, kept on).
+/// `physics.extra_iterations_on_head_contact` turns that off (measured, kept on:
+/// docs/src/decisions/0002-joint-fidelity.md).
 #[test]
 fn head_contact_extra_iterations_follow_their_switch() {
     let model = RobotModel::go2();

@@ -12,7 +12,7 @@ pub struct PhysicsParams {
     /// cheaper; with one substep a dropped robot's trunk touches the ground on landing.
     pub solver_iterations: usize,
     /// Rapier internal PGS iterations per substep. Default 3: the worst joint anchor gap under
-    /// random actions stays near 3 mm (README, design notes).
+    /// random actions stays near 3 mm (docs/src/decisions/0002-joint-fidelity.md).
     pub pgs_iterations: usize,
     /// Gravity along -z (m/s^2). Default 9.81.
     pub gravity: f32,

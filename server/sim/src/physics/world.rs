@@ -3,8 +3,8 @@
 //! Many robots share one world (1.5-1.8x cheaper per robot than a world each, measured): collision
 //! groups let robots touch only the terrain, never each other or themselves. Joints are impulse
 //! (maximal-coordinate) joints driven by explicit PD torques: rapier's multibody joints ran at
-//! 0.42x of their speed even with one substep (README, "Reduced coordinates"). Their anchors
-//! drift a little under load, which [`RobotWorld::max_joint_gap`] reports.
+//! 0.42x of their speed even with one substep (docs/src/decisions/0001-impulse-joints.md).
+//! Their anchors drift a little under load, which [`RobotWorld::max_joint_gap`] reports.
 
 use rapier3d::prelude::*;
 
@@ -615,7 +615,7 @@ pub const CONTACT_FORCE_THRESHOLD: f32 = 0.1;
 /// the physics tests). A joint motor pulling each joint towards its starting speed (an
 /// implicit armature on the joint alone) was measured and rejected: as a stiff row for PGS it
 /// kept loaded robots from converging (standing 19 mm low at 3 PGS iterations, creeping 5 mm
-/// per 5 s even at 8), README design notes.
+/// per 5 s even at 8): docs/src/decisions/0005-armature-on-links.md.
 fn body_mass_properties(
     model: &RobotModel,
     b: usize,

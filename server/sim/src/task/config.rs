@@ -314,7 +314,8 @@ pub struct RewardParams {
 /// Why: with the paper's fixed 1.4 rad a CPU-sized run finds the head rest (head and front feet
 /// down, pitch ~1.0) and stays there; the gated tracking and gait terms, more than half of what
 /// the biped mode pays, are then seen in ~0.1% of its steps. A threshold just above where the
-/// robots are pays them for a little more pitch each time (README, "Why the head rest held").
+/// robots are pays them for a little more pitch each time
+/// (docs/src/decisions/0008-upright-curriculum.md).
 /// One threshold for the whole batch, so that the critic sees one reward function at a time, as
 /// with legged_gym's command curriculum.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

@@ -76,14 +76,15 @@ reward_terms! {
     BipedUprightContacts => "biped_upright_contacts", 1.0, Biped;
     // Not in Table II (weight 0, the paper's task): 1 while anything but a foot (the head, a
     // thigh, a calf) touches the terrain in the biped mode. A CPU-sized run rests on its head or
-    // kneels on its front shins as a third support and never walks; a preset may price that
-    // rest (README, "Why the biped did not walk").
+    // kneels on its front shins as a third support and never walks; a recipe may price that
+    // rest (docs/src/decisions/0009-biped-body-contact.md).
     BipedBodyContact => "biped_body_contact", 0.0, Biped;
     // Not in Table II (weight 0, the paper's task): how far the hip abductions can move the
     // stance feet sideways, per radian, as a share of `rewards.sideways_reach_target`. Nose
     // down, the abduction axis points at the ground, and a foot right under its hip cannot be
-    // moved sideways at all; the biped did not learn to step sideways from there (README, "Why
-    // sideways is the hard direction"). A stance with the feet ahead of or behind the hips can.
+    // moved sideways at all; the biped did not learn to step sideways from there
+    // (docs/src/decisions/0010-sideways-reach.md). A stance with the feet ahead of or behind the
+    // hips can.
     BipedSidewaysReach => "biped_sideways_reach", 0.0, BipedUpright;
 }
 
