@@ -153,12 +153,15 @@ class OnPolicyRunner:
 
     def rollout(self) -> dict[str, float]:
         """Collect one rollout into the storage and compute returns; return rollout statistics."""
+        from unigait.env.terrain_stats import TerrainLevelStats
+
         env, ac, timers = self.env, self.actor_critic, self.timers
         spec = env.spec
         self.storage.clear()
         step = env.last
         term_sum = torch.zeros(len(spec.reward_terms), device=self.device)
         reward_sum, biped, level = 0.0, 0.0, 0.0
+        terrain = TerrainLevelStats.for_env(env)  # level per terrain type and per mode
         ended: dict[str, list[torch.Tensor]] = {
             "reward": [],
             "length": [],
@@ -196,6 +199,7 @@ class OnPolicyRunner:
                 biped += float((nxt.mode == BIPED_MODE).float().mean())
                 self.biped_pose.add(step.mode, nxt)
                 level += float(nxt.terrain_level.float().mean())
+                terrain.add(nxt.terrain_level, nxt.mode)
             step = nxt
         with timers.time("inference"), torch.no_grad():
             last_values = ac.value(step.critic_obs)
@@ -209,6 +213,7 @@ class OnPolicyRunner:
             "terrain_level": level / steps,
             "biped_share": biped / steps,
             **self.biped_pose.summary(),
+            **terrain.summary(),
         }
         if step.upright_pitch is not None:
             # I_up's threshold at the end of the rollout (the task's, or its curriculum's).

@@ -1,0 +1,121 @@
+"""Mean terrain level per terrain type and per mode, per iteration (the terrain curriculum's log).
+
+The step reply carries each env's level but not its terrain type. The type needs no wire field:
+the server places env ``i`` of a session of ``n`` envs in grid column ``i * C // n`` (``C``
+columns, legged_gym's blocks; ``initial_column`` in server/sim/src/terrain/curriculum.rs) and
+never moves it to another column, and the default grid's columns are :data:`DEFAULT_COLUMNS`. A
+sharded batch is one session per shard, so columns are counted per shard.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import torch
+
+from unigait.env.torch_env import TorchVecEnv
+
+#: The server's default grid columns, in order: (terrain type, number of columns). Mirrors
+#: ``DEFAULT_COLUMNS`` in server/sim/src/terrain/spec.rs (a test compares the two):
+#: legged_gym's proportions 0.1 / 0.1 / 0.35 / 0.25 / 0.2 over 20 columns.
+DEFAULT_COLUMNS: tuple[tuple[str, int], ...] = (
+    ("slope_up", 1),
+    ("slope_down", 1),
+    ("rough_slope", 2),
+    ("stairs_up", 7),
+    ("stairs_down", 5),
+    ("obstacles", 4),
+)
+
+#: Task modes by their value in the step's ``mode`` tensor.
+MODES: tuple[str, ...] = ("quad", "biped")
+
+
+def initial_column(env_index: int, num_envs: int, num_columns: int) -> int:
+    """Grid column of env ``env_index`` of ``num_envs`` (the server's rule, in blocks)."""
+    columns = max(num_columns, 1)
+    n = max(num_envs, 1)
+    return (min(env_index, n - 1) * columns) // n
+
+
+def env_terrain_types(terrain: str, counts: Sequence[int]) -> list[str]:
+    """The terrain type of every env of a batch.
+
+    Args:
+        terrain: The spec's terrain description: ``"flat"``, ``"curriculum"`` or
+            ``"<type> level <l>"`` (every env pinned to one tile).
+        counts: Envs per session, in batch order (one entry unless sharded).
+
+    Returns:
+        One type name per env (``"flat"`` on flat ground).
+    """
+    total = sum(counts)
+    if terrain == "curriculum":
+        columns = [name for name, n in DEFAULT_COLUMNS for _ in range(n)]
+        return [
+            columns[initial_column(i, count, len(columns))]
+            for count in counts
+            for i in range(count)
+        ]
+    name = terrain.split(" ")[0] if terrain else "flat"
+    return [name] * total
+
+
+class TerrainLevelStats:
+    """Sums of the terrain level over env-steps, by terrain type and by mode.
+
+    Scalars ``terrain_level/<type>`` for every type of the batch's grid and
+    ``terrain_level/quad`` / ``terrain_level/biped`` always, so the CSV has its columns from the
+    first iteration (NaN where a rollout had no such env-step).
+
+    Args:
+        env_types: The terrain type of every env (:func:`env_terrain_types`).
+        device: Where the sums live (that of the step tensors).
+    """
+
+    def __init__(self, env_types: Sequence[str], device: torch.device) -> None:
+        self.types: tuple[str, ...] = tuple(dict.fromkeys(env_types))
+        index = {name: k for k, name in enumerate(self.types)}
+        self.type_of_env = torch.tensor(
+            [index[t] for t in env_types], dtype=torch.int64, device=device
+        )
+        self.device = device
+        self.clear()
+
+    @classmethod
+    def for_env(cls, env: TorchVecEnv) -> TerrainLevelStats:
+        """The stats of ``env``'s batch (its terrain from the spec, shards from the session)."""
+        counts = getattr(env.session, "counts", None) or [env.num_envs]
+        return cls(env_terrain_types(env.spec.terrain, list(counts)), env.device)
+
+    def clear(self) -> None:
+        """Start a new rollout's sums."""
+        self.type_sum = torch.zeros(len(self.types), dtype=torch.float64, device=self.device)
+        self.type_steps = torch.zeros(len(self.types), dtype=torch.float64, device=self.device)
+        self.mode_sum = torch.zeros(len(MODES), dtype=torch.float64, device=self.device)
+        self.mode_steps = torch.zeros(len(MODES), dtype=torch.float64, device=self.device)
+
+    def add(self, level: torch.Tensor, mode: torch.Tensor) -> None:
+        """Add one step: ``level`` int [N] and ``mode`` int [N] (0 quad, 1 biped) of every env."""
+        lv = level.to(self.device, torch.float64)
+        md = mode.to(self.device, torch.int64).clamp(0, len(MODES) - 1)
+        self.type_sum += torch.bincount(self.type_of_env, weights=lv, minlength=len(self.types))
+        self.type_steps += torch.bincount(self.type_of_env, minlength=len(self.types))
+        self.mode_sum += torch.bincount(md, weights=lv, minlength=len(MODES))
+        self.mode_steps += torch.bincount(md, minlength=len(MODES))
+
+    def summary(self) -> dict[str, float]:
+        """Mean level per type and per mode since the last summary (NaN if none); then clear."""
+
+        def mean(total: torch.Tensor, count: torch.Tensor) -> float:
+            return float(total) / float(count) if float(count) > 0 else math.nan
+
+        out = {
+            f"terrain_level/{name}": mean(self.type_sum[k], self.type_steps[k])
+            for k, name in enumerate(self.types)
+        }
+        for k, name in enumerate(MODES):
+            out[f"terrain_level/{name}"] = mean(self.mode_sum[k], self.mode_steps[k])
+        self.clear()
+        return out

@@ -1,0 +1,78 @@
+"""Terrain level per type and per mode: env -> column layout and hand-computed means."""
+
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+
+import torch
+
+from unigait.env.terrain_stats import (
+    DEFAULT_COLUMNS,
+    TerrainLevelStats,
+    env_terrain_types,
+    initial_column,
+)
+
+SPEC_RS = Path(__file__).resolve().parents[2] / "server/sim/src/terrain/spec.rs"
+
+
+def test_default_columns_mirror_the_server() -> None:
+    text = SPEC_RS.read_text()
+    block = text[text.index("pub const DEFAULT_COLUMNS") :]
+    block = block[: block.index("];")]
+    pairs = re.findall(r"\(TerrainType::(\w+), (\d+)\)", block)
+    snake = [(re.sub(r"(?<!^)([A-Z])", r"_\1", t).lower(), int(n)) for t, n in pairs]
+    assert tuple(snake) == DEFAULT_COLUMNS
+    assert sum(n for _, n in DEFAULT_COLUMNS) == 20
+
+
+def test_columns_in_blocks_as_the_server() -> None:
+    assert [initial_column(i, 14, 7) for i in range(14)] == [i // 2 for i in range(14)]
+    assert [initial_column(i, 3, 7) for i in range(3)] == [0, 2, 4]
+    # 40 envs on 20 columns: two per column; stairs up are columns 4-10 -> envs 8-21.
+    types = env_terrain_types("curriculum", [40])
+    assert types[:2] == ["slope_up", "slope_up"]
+    assert types[2:4] == ["slope_down", "slope_down"]
+    assert types[8:22] == ["stairs_up"] * 14
+    assert types[22:32] == ["stairs_down"] * 10
+    assert types[32:] == ["obstacles"] * 8
+    # Sharded (20 + 20): each shard lays out its own 20 columns, one env each.
+    sharded = env_terrain_types("curriculum", [20, 20])
+    assert sharded[:20] == sharded[20:]
+    assert sharded[4:11] == ["stairs_up"] * 7
+    assert env_terrain_types("stairs_down level 6", [3]) == ["stairs_down"] * 3
+    assert env_terrain_types("flat", [2]) == ["flat", "flat"]
+
+
+def test_means_per_type_and_mode_by_hand() -> None:
+    stats = TerrainLevelStats(
+        ["stairs_up", "stairs_up", "obstacles", "slope_up"], torch.device("cpu")
+    )
+    # Step 1: levels 2, 4, 6, 1; modes quad, biped, biped, quad.
+    stats.add(torch.tensor([2, 4, 6, 1]), torch.tensor([0, 1, 1, 0], dtype=torch.uint8))
+    # Step 2: levels 3, 5, 7, 1; all quad.
+    stats.add(torch.tensor([3, 5, 7, 1]), torch.tensor([0, 0, 0, 0], dtype=torch.uint8))
+    out = stats.summary()
+    # stairs_up: (2 + 4 + 3 + 5) / 4 = 3.5; obstacles (6 + 7) / 2 = 6.5; slope_up 1.
+    assert out["terrain_level/stairs_up"] == 3.5
+    assert out["terrain_level/obstacles"] == 6.5
+    assert out["terrain_level/slope_up"] == 1.0
+    # quad: (2 + 1 + 3 + 5 + 7 + 1) / 6 = 19 / 6; biped: (4 + 6) / 2 = 5.
+    assert math.isclose(out["terrain_level/quad"], 19 / 6)
+    assert out["terrain_level/biped"] == 5.0
+    assert list(out) == [
+        "terrain_level/stairs_up",
+        "terrain_level/obstacles",
+        "terrain_level/slope_up",
+        "terrain_level/quad",
+        "terrain_level/biped",
+    ]
+    # Cleared: the same keys (the CSV's columns from the first row on), NaN without steps.
+    again = stats.summary()
+    assert list(again) == list(out)
+    assert all(math.isnan(v) for v in again.values())
+    # A rollout with no biped step: the biped key is there, NaN.
+    stats.add(torch.tensor([1, 1, 1, 1]), torch.tensor([0, 0, 0, 0]))
+    assert math.isnan(stats.summary()["terrain_level/biped"])
