@@ -16,6 +16,13 @@ ensure_system_packages() {
   if ! command -v openssl >/dev/null; then
     apt-get update -qq && apt-get install -y -qq openssl >/dev/null
   fi
+  # The docs' book builder. Debian 12 packages no mdbook, so cargo builds it once per machine
+  # (3 min 11 s here); 0.5.4 needs rustc >= 1.88. Its live-reload server is for writers: left out.
+  local mdbook_version=0.5.4
+  if ! mdbook --version 2>/dev/null | grep -qx "mdbook v$mdbook_version"; then
+    cargo install mdbook --version "$mdbook_version" --locked --quiet \
+      --no-default-features --features search
+  fi
 }
 
 # Create the repo's venv and install the Python client with its extras (plus any given extras).

@@ -9,6 +9,9 @@ ensure_rust_tools
 ensure_system_packages
 echo "== cargo fmt --check"
 cargo fmt --all -- --check
+echo "== docs: mdbook build, link check"
+mdbook build docs
+python3 scripts/check_links.py
 echo "== cargo build (release)"
 cargo build --release --workspace --all-targets --locked
 echo "== cargo test (release)"
@@ -18,6 +21,7 @@ if [ -f client-py/pyproject.toml ]; then
   ensure_python_env
   echo "== ruff"
   "$VENV/bin/ruff" check client-py tests
+  "$VENV/bin/ruff" check --config client-py/pyproject.toml scripts/check_links.py
   echo "== pytest"
   UNIGAIT_SERVER_BIN="$PWD/target/release/unigait-server" "$VENV/bin/pytest" -q client-py/tests tests
 fi
