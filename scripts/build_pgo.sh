@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Profile-guided build of unigait-server (opt-in; README, Performance).
+# Profile-guided build of unigait-server (opt-in; docs/src/performance.md).
 #
 # 1. builds an instrumented server, 2. runs the simulation bench on the loops a training run
 # and the MuJoCo comparison step (task loop, reference loop, curriculum terrain) to record where

@@ -41,7 +41,7 @@ echo "== evaluating on the server and recording a rollout"
 echo
 echo "Shipped policy: $OUT/shipped_quad_flat_eval.json, $OUT/shipped_quad_flat.rrd"
 echo "Shipped unified policy: $OUT/shipped_unified_flat_transition_*.json and .rrd"
-echo "  (pictures: scripts/render_recording.py, see README)"
+echo "  (pictures: scripts/render_recording.py, see docs/src/recordings.md)"
 echo "Training curves: $OUT/training/training_curves.png (scalars in $OUT/training/progress.csv)"
 echo "Evaluation: $OUT/eval.json"
 echo "Open the rollout with the rerun viewer (rerun-sdk 0.36, installed in the venv):"
