@@ -12,10 +12,14 @@ on the runner's 2 update threads. Variants (and thread counts) run interleaved i
 
 Every variant runs the same number of gradient steps on the same data. Prints the median over
 the repetitions of PPO, estimator and total seconds per update, and (``--inference``) the
-rollout's no-grad forwards (estimator, actor, critic, 24 steps) per iteration::
+rollout's no-grad forwards (estimator, actor, critic, 24 steps) per iteration. ``--check``
+times nothing: it runs one update of each variant from the same seed and prints how far the
+parameters end apart (the gathers change nothing; the ELU moves them by rounding)::
 
     .venv/bin/python tests/data/bench_update.py --repeats 7
     .venv/bin/python tests/data/bench_update.py --envs 4096 --paper-dims --threads 1 2
+    .venv/bin/python tests/data/bench_update.py --check --envs 256 \\
+        --variants before gather_only elu_only after
 """
 
 from __future__ import annotations
@@ -185,6 +189,28 @@ VARIANTS = {
 }
 
 
+def check(args: argparse.Namespace) -> None:
+    """Print how far each variant's parameters end from the first's after one update."""
+    torch.set_num_threads(args.threads[0])
+    params = {}
+    for name in args.variants:
+        v = Variant(args, *VARIANTS[name])
+        torch.manual_seed(123)  # the same permutations for every variant
+        stats = v.ppo.update(v.storage) | v.est.update(v.storage)
+        flat = [
+            torch.cat([p.detach().flatten() for p in m.parameters()])
+            for m in (v.actor_critic, v.estimator)
+        ]
+        params[name] = flat
+        first = params[args.variants[0]]
+        print(
+            f"{name:11s}: max |param - {args.variants[0]}'s| actor-critic "
+            f"{(flat[0] - first[0]).abs().max().item():.2e}, estimator "
+            f"{(flat[1] - first[1]).abs().max().item():.2e}; "
+            + ", ".join(f"{k} {stats[k]:.6g}" for k in ("kl", "value_loss", "estimator_loss"))
+        )
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__)
     p.add_argument("--envs", type=int, default=1024)
@@ -193,7 +219,15 @@ def main() -> None:
     p.add_argument("--variants", nargs="+", choices=list(VARIANTS), default=["before", "after"])
     p.add_argument("--paper-dims", action="store_true", help="actor/critic [512, 256, 128]")
     p.add_argument("--inference", action="store_true", help="also time the rollout's forwards")
+    p.add_argument(
+        "--check",
+        action="store_true",
+        help="no timing: one update of each variant from the same seed, parameters compared",
+    )
     args = p.parse_args()
+    if args.check:
+        check(args)
+        return
     dims = "[512, 256, 128]" if args.paper_dims else "[256, 128, 64]"
     print(
         f"envs {args.envs} x {STEPS} steps, actor/critic {dims}, {args.repeats} repeats "
