@@ -27,7 +27,7 @@ class EnvConfig:
     Attributes:
         servers: Server addresses; several shard the batch. Empty: start a local server.
         server_bin: Binary for a local server (empty: ``$UNIGAIT_SERVER_BIN`` or the repo's build).
-        num_envs: Envs in the batch (256: measured on 2 cores, docs/src/decisions/0013-cpu-learner.md).
+        num_envs: Envs in the batch (256: docs/src/decisions/0013-cpu-learner.md).
         seed: Session seed (shard i gets seed + i).
         task: The task config's overrides as a nested table (``{"rewards": {"weights":
             {"biped_body_contact": -3.0}}}``); the client sends it as TOML.
