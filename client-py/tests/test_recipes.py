@@ -3,6 +3,7 @@
 The kill-and-resume run against the real server is ``tests/test_e2e_recipes.py``.
 """
 
+import csv
 import json
 import re
 from pathlib import Path
@@ -177,6 +178,12 @@ def test_a_recipe_runs_every_stage_records_it_and_a_second_call_finds_it_done(
         "recipe two, stage 2 of 2: second",
     ]
     assert (run / "final.pt").is_file()
+    # Killed before the stage's first checkpoint: it starts again, its log rows counted once.
+    for path in [*second.glob("model_*.pt"), second / "done.json"]:
+        path.unlink()
+    assert main(command) == 0
+    with (second / "progress.csv").open() as f:
+        assert [int(float(r["iteration"])) for r in csv.DictReader(f)] == [3, 4, 5]
     # Again: nothing left to train, no session opened.
     sessions = len(servicer.task_overrides)
     assert main(command) == 0

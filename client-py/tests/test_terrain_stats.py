@@ -50,10 +50,10 @@ def test_means_per_type_and_mode_by_hand() -> None:
     stats = TerrainLevelStats(
         ["stairs_up", "stairs_up", "obstacles", "slope_up"], torch.device("cpu")
     )
-    # Step 1: levels 2, 4, 6, 1; modes quad, biped, biped, quad.
-    stats.add(torch.tensor([2, 4, 6, 1]), torch.tensor([0, 1, 1, 0], dtype=torch.uint8))
+    # Step 1: levels 2, 4, 6, 1; modes quad, biped, biped, quad (the wire's 2 and 1).
+    stats.add(torch.tensor([2, 4, 6, 1]), torch.tensor([2, 1, 1, 2], dtype=torch.uint8))
     # Step 2: levels 3, 5, 7, 1; all quad.
-    stats.add(torch.tensor([3, 5, 7, 1]), torch.tensor([0, 0, 0, 0], dtype=torch.uint8))
+    stats.add(torch.tensor([3, 5, 7, 1]), torch.tensor([2, 2, 2, 2], dtype=torch.uint8))
     out = stats.summary()
     # stairs_up: (2 + 4 + 3 + 5) / 4 = 3.5; obstacles (6 + 7) / 2 = 6.5; slope_up 1.
     assert out["terrain_level/stairs_up"] == 3.5
@@ -74,5 +74,5 @@ def test_means_per_type_and_mode_by_hand() -> None:
     assert list(again) == list(out)
     assert all(math.isnan(v) for v in again.values())
     # A rollout with no biped step: the biped key is there, NaN.
-    stats.add(torch.tensor([1, 1, 1, 1]), torch.tensor([0, 0, 0, 0]))
+    stats.add(torch.tensor([1, 1, 1, 1]), torch.tensor([2, 2, 2, 2]))
     assert math.isnan(stats.summary()["terrain_level/biped"])

@@ -28,8 +28,10 @@ DEFAULT_COLUMNS: tuple[tuple[str, int], ...] = (
     ("obstacles", 4),
 )
 
-#: Task modes by their value in the step's ``mode`` tensor.
+#: Task modes as this module counts them (index 0 quad, 1 biped).
 MODES: tuple[str, ...] = ("quad", "biped")
+#: Biped mode in the step's ``mode`` tensor (1 biped, 2 quad: the paper's x).
+BIPED_MODE = 1
 
 
 def initial_column(env_index: int, num_envs: int, num_columns: int) -> int:
@@ -97,9 +99,9 @@ class TerrainLevelStats:
         self.mode_steps = torch.zeros(len(MODES), dtype=torch.float64, device=self.device)
 
     def add(self, level: torch.Tensor, mode: torch.Tensor) -> None:
-        """Add one step: ``level`` int [N] and ``mode`` int [N] (0 quad, 1 biped) of every env."""
+        """Add one step: ``level`` int [N] and ``mode`` u8 [N] (1 biped, 2 quad) of every env."""
         lv = level.to(self.device, torch.float64)
-        md = mode.to(self.device, torch.int64).clamp(0, len(MODES) - 1)
+        md = (mode.to(self.device) == BIPED_MODE).to(torch.int64)
         self.type_sum += torch.bincount(self.type_of_env, weights=lv, minlength=len(self.types))
         self.type_steps += torch.bincount(self.type_of_env, minlength=len(self.types))
         self.mode_sum += torch.bincount(md, weights=lv, minlength=len(MODES))

@@ -139,9 +139,13 @@ def run_stage(
     Returns:
         The stage's final checkpoint.
     """
-    stage_dir.mkdir(parents=True, exist_ok=True)
     latest = stage_dir / "model_latest.pt"
     resuming = latest.exists() and (stage_dir / STAGE_FILE).exists()
+    if not resuming:
+        # Killed before its first checkpoint: nothing to resume, and its log rows would be
+        # counted twice.
+        shutil.rmtree(stage_dir, ignore_errors=True)
+    stage_dir.mkdir(parents=True, exist_ok=True)
     source = latest if resuming else _start_checkpoint(stage, previous_final)
     cfg: TrainConfig = stage_config(stage, stage_dir)
     if source is not None:
