@@ -62,9 +62,18 @@ def test_ship_chooses_on_the_validation_seed_and_reports_on_the_evaluation_seed(
     # The fake server's figures are the same for both: the later checkpoint wins the tie.
     assert "last 2 checkpoints on validation seed 7 (12 envs per scenario)" in card
     assert "2: 0/7 (-7.00), 3: 0/7 (-7.00). Iteration 3 ranked first" in card
+    folder = tmp_path / "policies" / "u"
+    # Every scenario's full report is in the folder; reports made beside ship stay with the
+    # checkpoint they describe.
+    assert sorted(p.name for p in (folder / "reports").iterdir()) == sorted(
+        f"{s}_seed1000.json" for s in scenarios
+    )
+    (folder / "reports" / "table_vi_seed1000.json").write_text("{}")
+    assert main([*ship, "--checkpoint", str(run / "model_3.pt")]) == 0  # the same checkpoint
+    assert (folder / "reports" / "table_vi_seed1000.json").exists()
     # An earlier checkpoint ships with the log up to it, not the run's later rows.
     assert main([*ship, "--checkpoint", str(run / "model_2.pt")]) == 0
-    folder = tmp_path / "policies" / "u"
+    assert not (folder / "reports" / "table_vi_seed1000.json").exists()
     with (folder / "progress.csv").open() as f:
         assert [int(float(r["iteration"])) for r in csv.DictReader(f)] == [1, 2]
     assert (folder / "training.png").stat().st_size > 0

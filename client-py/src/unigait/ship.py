@@ -61,6 +61,23 @@ def _log_until(run_dir: Path, folder: Path, iteration: int) -> list[dict[str, st
     return rows
 
 
+def _same_file(a: Path, b: Path) -> bool:
+    return a.is_file() and b.is_file() and a.read_bytes() == b.read_bytes()
+
+
+def _keep_reports(old: Path, built: Path) -> None:
+    """Carry the old folder's other reports over when it shipped the very same checkpoint.
+
+    Reports made beside ``ship`` (Table VI, other seeds, sim2sim) describe the checkpoint, not
+    the ship: re-shipping it (a new card, say) keeps them; another checkpoint drops them.
+    """
+    if not _same_file(old / "model.pt", built / "model.pt"):
+        return
+    for report in sorted((old / "reports").glob("*.json")):
+        if not (built / "reports" / report.name).exists():
+            shutil.copyfile(report, built / "reports" / report.name)
+
+
 def _swap_into_place(built: Path, folder: Path) -> None:
     """Replace ``folder`` with ``built`` (the old one is removed only once the new one is in)."""
     old = folder.with_name(f".{folder.name}.old")
@@ -160,6 +177,7 @@ def ship(
             selection=selection,
         )
         (built / "MODEL_CARD.md").write_text(model_card(card))
+        _keep_reports(folder, built)
     except BaseException:
         shutil.rmtree(built, ignore_errors=True)
         raise
