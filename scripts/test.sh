@@ -22,6 +22,8 @@ if [ -f client-py/pyproject.toml ]; then
   echo "== ruff"
   "$VENV/bin/ruff" check client-py tests
   "$VENV/bin/ruff" check --config client-py/pyproject.toml scripts/check_links.py
+  echo "== mypy"
+  (cd client-py && "$VENV/bin/mypy" src/unigait)
   echo "== pytest"
   UNIGAIT_SERVER_BIN="$PWD/target/release/unigait-server" "$VENV/bin/pytest" -q client-py/tests tests
 fi

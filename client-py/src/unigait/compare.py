@@ -75,7 +75,8 @@ def run_rsl_rl(
             self._clear()
 
         def _clear(self) -> None:
-            self.steps, self.term_sum, self.lengths = 0, 0.0, []
+            self.steps, self.term_sum = 0, 0.0
+            self.lengths: list[float] = []
 
         def step(self, actions: torch.Tensor) -> tuple[Any, torch.Tensor, torch.Tensor, dict]:
             out = super().step(actions)

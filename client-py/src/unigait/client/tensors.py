@@ -38,7 +38,8 @@ def encode(array: np.ndarray, dtype: str = "<f4") -> Any:
     """
     dt = np.dtype(dtype)
     arr = np.ascontiguousarray(array, dtype=dt)
-    return pb.Tensor(shape=list(arr.shape), dtype=_FROM_NUMPY[dt], data=arr.tobytes())
+    # The stubs type enum fields as their wrapper; the value is the enum's int.
+    return pb.Tensor(shape=list(arr.shape), dtype=_FROM_NUMPY[dt], data=arr.tobytes())  # type: ignore[arg-type]
 
 
 def decode(

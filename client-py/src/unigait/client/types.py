@@ -198,7 +198,9 @@ class StepResult:
             labels=cat("labels"),
             privileged=cat("privileged"),
             reward=cat("reward"),
-            reward_terms=None if any(t is None for t in terms) else np.concatenate(terms),
+            reward_terms=None
+            if any(t is None for t in terms)
+            else np.concatenate([t for t in terms if t is not None]),
             terminated=cat("terminated"),
             truncated=cat("truncated"),
             final_env_ids=np.concatenate(

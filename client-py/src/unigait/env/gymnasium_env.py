@@ -85,9 +85,9 @@ class UnigaitVectorEnv(VectorEnv):
         self, *, seed: int | list[int] | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
         """Reset every env (or ``options["mask"]``); returns o_t f32 [N, 53] and info."""
-        super().reset(seed=seed)
         if isinstance(seed, list):
             seed = seed[0]
+        super().reset(seed=seed)
         if seed is not None and seed != self._config.seed:
             self._session.close()
             self._config = dataclasses.replace(self._config, seed=int(seed))

@@ -92,7 +92,7 @@ def _scalars(result: dict[str, Any], prefix: str = "") -> dict[str, float]:
 
 def figures(ours: dict[str, Any], theirs: dict[str, Any]) -> list[Figure]:
     """Every scalar (and short vector entry) both sides report, scenario by scenario."""
-    rows = []
+    rows: list[Figure] = []
     for scenario, result in theirs.items():
         if scenario not in ours:
             continue
