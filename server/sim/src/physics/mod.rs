@@ -1,6 +1,7 @@
 //! Physics: robots in rapier worlds, actuation, state read-back.
 
 mod actuation;
+pub mod articulated;
 mod inertia;
 mod joint_state;
 mod params;
