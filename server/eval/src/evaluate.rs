@@ -240,13 +240,24 @@ pub fn evaluate_scenario(
                 stats.ang_vel_error_radps,
             );
             m.insert(format!("{prefix}/samples"), stats.samples as f64);
+            let idle = &stats.do_nothing;
+            for (name, value) in [
+                ("lin_vel_error_mps", idle.lin_vel_error_mps),
+                ("lin_vel_error_forward_mps", idle.forward_error_mps),
+                ("lin_vel_error_lateral_mps", idle.lateral_error_mps),
+                ("ang_vel_error_radps", idle.ang_vel_error_radps),
+            ] {
+                m.insert(format!("{prefix}/do_nothing/{name}"), value);
+            }
             report.tracking.insert(mode.name().to_string(), stats);
         }
     }
     report.notes.push(format!(
         "tracking error: heading-frame velocity, steps at least {} s after a reset or mode \
          change; biped steps only when upright (pitch > {UPRIGHT_PITCH} rad); \
-         lin_vel_error_forward_mps / _lateral_mps: the same along and across the heading",
+         lin_vel_error_forward_mps / _lateral_mps: the same along and across the heading; \
+         do_nothing/*: the same figures over the same steps for a policy that does nothing \
+         (velocity and yaw rate 0), from the commands alone",
         crate::metrics::TRACKING_SETTLE_S
     ));
     report.wall_s = t0.elapsed().as_secs_f64();

@@ -31,7 +31,7 @@ mod transition;
 
 pub use error::EvalError;
 pub use evaluate::{EvalOptions, evaluate, evaluate_scenario};
-pub use metrics::{Summary, TrackingStats, TraversalEnd};
+pub use metrics::{DoNothingStats, Summary, TrackingStats, TraversalEnd, wilson_interval};
 pub use report::{
     EvalReport, HeightTrace, TransitionReport, TransitionTrial, TraversalCaseReport,
     TraversalReport, TraversalTrial,

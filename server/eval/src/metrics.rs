@@ -130,6 +130,23 @@ pub struct TrackingAccumulator {
     forward: f64,
     lateral: f64,
     ang: f64,
+    /// The same four sums for a policy that does nothing (zero velocity and yaw rate) under
+    /// the same commands: what the figures above must beat to mean anything.
+    idle: [f64; 4],
+}
+
+/// The tracking error a policy that does nothing (base velocity and yaw rate 0) would have on
+/// the same samples: computed from the commands alone, nothing simulated.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct DoNothingStats {
+    /// Mean |v*_xy| (m/s).
+    pub lin_vel_error_mps: f64,
+    /// Mean |v*_x| (m/s).
+    pub forward_error_mps: f64,
+    /// Mean |v*_y| (m/s).
+    pub lateral_error_mps: f64,
+    /// Mean |w*_z| (rad/s).
+    pub ang_vel_error_radps: f64,
 }
 
 /// Velocity tracking error of one mode.
@@ -148,6 +165,8 @@ pub struct TrackingStats {
     pub lateral_error_mps: f64,
     /// Mean |w*_z - w_z| (rad/s).
     pub ang_vel_error_radps: f64,
+    /// The same figures for a policy that does nothing, over the same samples.
+    pub do_nothing: DoNothingStats,
 }
 
 impl TrackingAccumulator {
@@ -161,6 +180,15 @@ impl TrackingAccumulator {
         self.forward += f64::from(dx.abs());
         self.lateral += f64::from(dy.abs());
         self.ang += f64::from((command[2] - yaw_rate).abs());
+        let idle = [
+            command[0].hypot(command[1]),
+            command[0].abs(),
+            command[1].abs(),
+            command[2].abs(),
+        ];
+        for (sum, e) in self.idle.iter_mut().zip(idle) {
+            *sum += f64::from(e);
+        }
     }
 
     /// Add another accumulator's samples.
@@ -171,6 +199,9 @@ impl TrackingAccumulator {
         self.forward += other.forward;
         self.lateral += other.lateral;
         self.ang += other.ang;
+        for (sum, e) in self.idle.iter_mut().zip(other.idle) {
+            *sum += e;
+        }
     }
 
     /// The means (None without samples).
@@ -184,6 +215,12 @@ impl TrackingAccumulator {
                 forward_error_mps: self.forward / n,
                 lateral_error_mps: self.lateral / n,
                 ang_vel_error_radps: self.ang / n,
+                do_nothing: DoNothingStats {
+                    lin_vel_error_mps: self.idle[0] / n,
+                    forward_error_mps: self.idle[1] / n,
+                    lateral_error_mps: self.idle[2] / n,
+                    ang_vel_error_radps: self.idle[3] / n,
+                },
             }
         })
     }
@@ -294,6 +331,43 @@ pub fn rate(hits: usize, trials: usize) -> Option<f64> {
     (trials > 0).then(|| hits as f64 / trials as f64)
 }
 
+/// The normal quantile of a two-sided 95% interval.
+pub const Z95: f64 = 1.959964;
+
+/// Wilson score 95% interval [low, high] of `hits` in `trials` (None without trials): unlike
+/// p +- z sqrt(p (1 - p) / n) it stays inside [0, 1] and does not shrink to a point at 0 or n
+/// hits, which is where small evaluations sit.
+pub fn wilson_interval(hits: usize, trials: usize) -> Option<[f64; 2]> {
+    if trials == 0 {
+        return None;
+    }
+    let n = trials as f64;
+    let p = hits.min(trials) as f64 / n;
+    let z2 = Z95 * Z95;
+    let d = 1.0 + z2 / n;
+    let centre = (p + z2 / (2.0 * n)) / d;
+    let half = Z95 / d * (p * (1.0 - p) / n + z2 / (4.0 * n * n)).sqrt();
+    // At 0 or n hits a bound is exactly 0 or 1; rounding would leave it a hair inside.
+    let low = if hits == 0 { 0.0 } else { centre - half };
+    let high = if hits >= trials { 1.0 } else { centre + half };
+    Some([low.max(0.0), high.min(1.0)])
+}
+
+/// Insert the rate `name` = hits / trials with `name_ci95_low` and `name_ci95_high` (its
+/// Wilson interval); nothing without trials.
+pub fn insert_rate(
+    metrics: &mut std::collections::BTreeMap<String, f64>,
+    name: &str,
+    hits: usize,
+    trials: usize,
+) {
+    if let (Some(r), Some([low, high])) = (rate(hits, trials), wilson_interval(hits, trials)) {
+        metrics.insert(name.to_string(), r);
+        metrics.insert(format!("{name}_ci95_low"), low);
+        metrics.insert(format!("{name}_ci95_high"), high);
+    }
+}
+
 #[cfg(test)]
 mod test {
     use super::*;
@@ -353,6 +427,67 @@ mod test {
         assert_eq!(median(&[1.0, 2.0]), Some(1.5));
         assert_eq!(median(&[]), None);
         assert_eq!(rate(1, 4), Some(0.25));
+    }
+
+    #[test]
+    fn doing_nothing_costs_the_size_of_the_command() {
+        let mut t = TrackingAccumulator::default();
+        // Tracked exactly: no error of its own, while standing still would miss by the
+        // command: |(0.3, -0.4)| = 0.5 and |(1, 0)| = 1.
+        t.add([0.3, -0.4, 0.5], [0.3, -0.4], 0.5);
+        t.add([1.0, 0.0, -0.2], [1.0, 0.0], -0.2);
+        let s = t.stats().unwrap();
+        assert!(s.lin_vel_error_mps.abs() < 1e-12 && s.ang_vel_error_radps.abs() < 1e-12);
+        let d = s.do_nothing;
+        assert!((d.lin_vel_error_mps - 0.75).abs() < 1e-6, "{d:?}");
+        assert!((d.forward_error_mps - 0.65).abs() < 1e-6, "{d:?}");
+        assert!((d.lateral_error_mps - 0.2).abs() < 1e-6, "{d:?}");
+        assert!((d.ang_vel_error_radps - 0.35).abs() < 1e-6, "{d:?}");
+        // A robot that stands still scores exactly the do-nothing figures, merged or not.
+        let mut still = TrackingAccumulator::default();
+        still.add([0.3, -0.4, 0.5], [0.0, 0.0], 0.0);
+        let mut other = TrackingAccumulator::default();
+        other.add([1.0, 0.0, -0.2], [0.0, 0.0], 0.0);
+        still.merge(&other);
+        let s = still.stats().unwrap();
+        assert!((s.lin_vel_error_mps - s.do_nothing.lin_vel_error_mps).abs() < 1e-12);
+        assert!((s.forward_error_mps - s.do_nothing.forward_error_mps).abs() < 1e-12);
+        assert!((s.lateral_error_mps - s.do_nothing.lateral_error_mps).abs() < 1e-12);
+        assert!((s.ang_vel_error_radps - s.do_nothing.ang_vel_error_radps).abs() < 1e-12);
+        assert_eq!(s.do_nothing, d);
+    }
+
+    #[test]
+    fn wilson_intervals_by_hand() {
+        // (p + z^2/2n) / (1 + z^2/n) -+ z / (1 + z^2/n) sqrt(p (1 - p) / n + z^2 / 4n^2).
+        let close = |got: [f64; 2], want: [f64; 2]| {
+            assert!(
+                (got[0] - want[0]).abs() < 1e-9 && (got[1] - want[1]).abs() < 1e-9,
+                "{got:?} != {want:?}"
+            );
+        };
+        close(
+            wilson_interval(61, 64).unwrap(),
+            [0.8710034617, 0.9839309833],
+        );
+        close(
+            wilson_interval(17, 20).unwrap(),
+            [0.6395811334, 0.9476312545],
+        );
+        close(wilson_interval(1, 2).unwrap(), [0.0945312046, 0.9054687954]);
+        // No successes (or no failures) still leaves room on one side.
+        close(wilson_interval(0, 20).unwrap(), [0.0, 0.1611251602]);
+        close(wilson_interval(20, 20).unwrap(), [0.8388748398, 1.0]);
+        assert_eq!(wilson_interval(0, 20).unwrap()[0], 0.0);
+        assert_eq!(wilson_interval(20, 20).unwrap()[1], 1.0);
+        assert_eq!(wilson_interval(0, 0), None);
+        let mut m = std::collections::BTreeMap::new();
+        insert_rate(&mut m, "success_rate", 61, 64);
+        assert_eq!(m["success_rate"], 61.0 / 64.0);
+        assert!((m["success_rate_ci95_low"] - 0.8710034617).abs() < 1e-9);
+        assert!((m["success_rate_ci95_high"] - 0.9839309833).abs() < 1e-9);
+        insert_rate(&mut m, "fall_rate", 0, 0);
+        assert_eq!(m.len(), 3, "no trials, no rate: {m:?}");
     }
 
     #[test]

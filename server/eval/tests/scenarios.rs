@@ -317,6 +317,11 @@ fn onnx_test_policy_runs_end_to_end() {
     for name in [
         "tracking/quad/lin_vel_error_mps",
         "tracking/quad/termination_rate",
+        "tracking/quad/ang_vel_error_radps",
+        "tracking/quad/do_nothing/lin_vel_error_mps",
+        "tracking/quad/do_nothing/lin_vel_error_forward_mps",
+        "tracking/quad/do_nothing/lin_vel_error_lateral_mps",
+        "tracking/quad/do_nothing/ang_vel_error_radps",
         "head_hits",
         "head_contact_share",
     ] {
