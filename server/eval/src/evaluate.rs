@@ -161,7 +161,11 @@ pub fn evaluate_scenario(
                  redrawn from the {} ranges; trials are the envs still in their first episode \
                  and in the {} posture at the switch; posture reached = {} held {HOLD_S} s; \
                  success = reached within {} s and no base contact from the switch until {} s \
-                 after",
+                 after; strict_success_rate: a success with no body but the feet (head, \
+                 thighs, calves) on the terrain over the same window either (contacts as read \
+                 back after each policy step); fall_trials: base contacts in that window, \
+                 fall_trials_whole_window: until the end of the run; every rate X has \
+                 X_ci95_low / X_ci95_high, its Wilson 95% interval",
                 spec.from.name(),
                 spec.to.name(),
                 spec.switch_s,

@@ -36,6 +36,8 @@ pub use report::{
     EvalReport, HeightTrace, TransitionReport, TransitionTrial, TraversalCaseReport,
     TraversalReport, TraversalTrial,
 };
-pub use runner::{EnvProbe, NoObserver, Policies, Rollout, StepObserver, probe, sim_policy_spec};
+pub use runner::{
+    BodyContact, EnvProbe, NoObserver, Policies, Rollout, StepObserver, probe, sim_policy_spec,
+};
 pub use scenario::{Mode, Scenario, ScenarioKind, TABLE_VI, scenario, scenario_names, scenarios};
 pub use terrain::{Obstacle, obstacle_terrain};

@@ -5,6 +5,7 @@ use std::collections::BTreeMap;
 use serde::Serialize;
 
 use crate::metrics::{Summary, TrackingStats, TraversalEnd};
+use crate::runner::BodyContact;
 use crate::scenario::Mode;
 use crate::terrain::Obstacle;
 
@@ -82,10 +83,18 @@ pub struct TransitionTrial {
     pub command_after: [f32; 3],
     /// Time from the switch until the new posture held (s), if it did.
     pub transition_time_s: Option<f32>,
-    /// The base touched the ground during the switch or the settle time after it.
+    /// The base touched the ground during the switch or the settle time after it (a fall:
+    /// the episode terminated).
     pub base_contact: bool,
     /// Completed in time with no base contact.
     pub success: bool,
+    /// Bodies other than the feet that touched the terrain, without a fall, over the same
+    /// window (head, thighs or calves; the trunk only ever touches in a fall).
+    pub body_contact: BodyContact,
+    /// A success with no such contact either: the paper's collision-free switch.
+    pub strict_success: bool,
+    /// The episode terminated at any time from the switch to the end of the observed window.
+    pub fell_in_window: bool,
     /// Standard deviation of the base height from the switch to the end (m).
     pub height_std_m: f32,
     /// Peak-to-peak base height over the same time (m).
@@ -131,6 +140,26 @@ pub struct TransitionReport {
     pub successes: usize,
     /// Successes / trials.
     pub success_rate: Option<f64>,
+    /// Wilson 95% interval of the success rate.
+    pub success_rate_ci95: Option<[f64; 2]>,
+    /// Successes with no body other than the feet on the terrain during the switch or the
+    /// settle time.
+    pub strict_successes: usize,
+    /// Strict successes / trials.
+    pub strict_success_rate: Option<f64>,
+    /// Wilson 95% interval of the strict success rate.
+    pub strict_success_rate_ci95: Option<[f64; 2]>,
+    /// Trials with a body other than the feet on the terrain (without a fall) during the switch
+    /// or the settle time.
+    pub body_contact_trials: usize,
+    /// Of those, the trials with the head down.
+    pub head_contact_trials: usize,
+    /// Of those, the trials with a thigh or a calf down.
+    pub leg_contact_trials: usize,
+    /// Trials with a base contact during the switch or the settle time (= `base_contacts`).
+    pub fall_trials: usize,
+    /// Trials that fell at any time from the switch to the end of the observed window.
+    pub fall_trials_whole_window: usize,
     /// Trials with a base contact during the switch or the settle time.
     pub base_contacts: usize,
     /// Transition times of the trials that completed (s).

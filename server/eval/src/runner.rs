@@ -3,6 +3,7 @@
 
 use std::sync::Arc;
 
+use serde::Serialize;
 use unigait_policy::{ObsHistory, Policy, PolicyError, PolicySpec};
 use unigait_sim::env::VecEnv;
 use unigait_sim::robot::NUM_JOINTS;
@@ -150,6 +151,29 @@ pub struct EnvProbe {
     pub truncated: bool,
     /// Steps since the episode began.
     pub episode_step: u32,
+    /// Bodies other than the feet on the terrain at the end of the step.
+    pub contact: BodyContact,
+}
+
+/// Which bodies other than the feet touch the terrain, as the sim reads contacts back: from
+/// the last physics step of the policy step, so a touch that is over within the step's
+/// earlier physics steps goes unseen.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct BodyContact {
+    /// The trunk (the episode terminates).
+    pub trunk: bool,
+    /// The head (neither terminating nor penalised).
+    pub head: bool,
+    /// A thigh or a calf (penalised in training).
+    pub legs: bool,
+}
+
+impl BodyContact {
+    /// Any of them. Hips are left out: the sim counts their contacts without a force, so a
+    /// near miss would count; a hip sits on the trunk's corner, which would touch with it.
+    pub fn any(&self) -> bool {
+        self.trunk || self.head || self.legs
+    }
 }
 
 /// Read env `i` after the last step.
@@ -159,6 +183,9 @@ pub fn probe(env: &VecEnv, i: usize) -> EnvProbe {
     let out = env.output();
     let heading = heading_direction(s.base_rot);
     let v = to_heading_frame(heading, s.base_linvel);
+    // The env's own threshold for the trunk and head; thighs and calves are counted by the
+    // physics at its (lower) threshold, as the collision penalty reads them.
+    let threshold = env.context().config.rewards.contact_threshold;
     EnvProbe {
         base: [s.base_pos.x, s.base_pos.y, s.base_pos.z],
         height: s.base_pos.z - env.terrain().height(s.base_pos.x, s.base_pos.y),
@@ -171,6 +198,11 @@ pub fn probe(env: &VecEnv, i: usize) -> EnvProbe {
         terminated: out.terminated[i] != 0,
         truncated: out.truncated[i] != 0,
         episode_step: e.episode_step,
+        contact: BodyContact {
+            trunk: s.trunk_force > threshold,
+            head: s.head_force > threshold,
+            legs: s.penalised_contacts > 0,
+        },
     }
 }
 

@@ -9,7 +9,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 
 use unigait_eval::{
     EvalError, EvalOptions, Mode, NoObserver, Policies, Rollout, StepObserver, TraversalEnd,
-    evaluate, scenario_names, sim_policy_spec,
+    evaluate, probe, scenario_names, sim_policy_spec, wilson_interval,
 };
 use unigait_policy::{ConstantPolicy, ObsHistory, OnnxPolicy, Policy, PolicyError, PolicySpec};
 use unigait_sim::env::{VecEnv, VecEnvOptions};
@@ -126,6 +126,27 @@ fn quad_to_biped_switches_every_env_and_measures_each_one() {
     }
     assert_eq!(t.success_rate, Some(0.0));
     assert_eq!(report.metrics["trials"], 3.0);
+    // Strictly counted too, with the interval 0 of 3 leaves open; standing on four feet
+    // touches nothing else and never falls.
+    let m = &report.metrics;
+    assert_eq!(m["strict_success_rate"], 0.0);
+    let [low, high] = wilson_interval(0, 3).expect("trials");
+    assert_eq!(
+        (
+            m["strict_success_rate_ci95_low"],
+            m["strict_success_rate_ci95_high"]
+        ),
+        (low, high)
+    );
+    assert_eq!(m["success_rate_ci95_high"], high);
+    for key in [
+        "body_contact_trials",
+        "fall_trials",
+        "fall_trials_whole_window",
+    ] {
+        assert_eq!(m[key], 0.0, "{key}");
+    }
+    assert!(t.outcomes.iter().all(|o| !o.body_contact.any()));
     // The trace covers 1 s before the switch to the end of the window, all three trials alive
     // at the switch.
     let h = &t.height_trace;
@@ -380,4 +401,38 @@ fn an_env_that_resets_restarts_its_history_with_its_first_observation() {
         }
     }
     assert!(reset_seen, "the scripted fall ends an episode within 4 s");
+}
+
+#[test]
+fn a_collapsing_robot_shows_leg_contacts_before_it_falls() {
+    let env = VecEnv::new(
+        Arc::new(RobotModel::go2()),
+        TaskConfig::embedded_default(),
+        Arc::new(Terrain::Flat),
+        VecEnvOptions {
+            num_envs: 2,
+            seed: 5,
+            threads: 1,
+            ..VecEnvOptions::default()
+        },
+    )
+    .expect("env");
+    let mut rollout = Rollout::new(env);
+    let (mut touched, mut fell) = (false, false);
+    for _ in 0..200 {
+        rollout.step(&collapse()).expect("step");
+        for i in 0..2 {
+            let p = probe(rollout.env(), i);
+            if p.terminated {
+                fell = true;
+            } else if !fell && p.contact.any() {
+                touched = true;
+            }
+        }
+        if fell {
+            break;
+        }
+    }
+    assert!(fell, "the scripted fall ends an episode");
+    assert!(touched, "knees or head are down before the trunk");
 }
