@@ -12,13 +12,13 @@ use unigait_sim::terrain::Terrain;
 use crate::error::EvalError;
 use crate::metrics::{
     EpisodeOutcomes, HOLD_S, HeadHits, QUAD_PITCH, Summary, TrackingAccumulator, TraversalEnd,
-    UPRIGHT_PITCH, UPRIGHT_SETTLE_S, rate, traversal_step,
+    UPRIGHT_PITCH, UPRIGHT_SETTLE_S, insert_rate, rate, traversal_step, wilson_interval,
 };
 use crate::report::{EvalReport, TraversalCaseReport, TraversalReport, TraversalTrial};
 use crate::runner::{Policies, Rollout, StepObserver, probe};
 use crate::scenario::{
-    Mode, Scenario, ScenarioKind, TABLE_VI, TrackingSpec, TraversalSpec, scenario,
-    table_vi_scenarios, tracking_config, traversal_config,
+    Mode, PUSH_INTERVAL_S, PUSH_VELOCITY_MPS, Scenario, ScenarioKind, TABLE_VI, TrackingSpec,
+    TraversalSpec, scenario, table_vi_scenarios, tracking_config, traversal_config,
 };
 use crate::terrain::obstacle_terrain;
 use crate::transition::{run_transition, transition_metrics};
@@ -136,11 +136,21 @@ pub fn evaluate_scenario(
         n,
         options.seed,
     );
-    report.notes.push(
-        "calm start: default joints, no initial velocity or tilt; pushes off; the base \
-         config's other domain randomisation and observation noise stay on"
-            .into(),
-    );
+    let pushes = matches!(&scenario.kind, ScenarioKind::Tracking(t) if t.pushes);
+    report.notes.push(format!(
+        "calm start: default joints, no initial velocity or tilt; {}; the base config's other \
+         domain randomisation and observation noise stay on",
+        if pushes {
+            format!(
+                "Table V's pushes on (base xy velocity shifted by U(-{PUSH_VELOCITY_MPS}, \
+                 {PUSH_VELOCITY_MPS}) m/s per axis every {PUSH_INTERVAL_S} s of an episode, \
+                 when the base config's domain randomisation is enabled: {})",
+                options.base_config.randomization.enabled
+            )
+        } else {
+            "pushes off".to_string()
+        }
+    ));
     let mut tracking = RunTotals::default();
     match &scenario.kind {
         ScenarioKind::Traversal(spec) => {
@@ -148,7 +158,11 @@ pub fn evaluate_scenario(
             traversal_metrics(&t, &mut report.metrics);
             report.notes.push(format!(
                 "success = the base got {} m past the obstacle's far edge along the commanded \
-                 direction within {} s with no base contact",
+                 direction within {} s with no base contact; fall_rate: ended by a base \
+                 contact; timeout_rate: neither crossed nor fell in time; \
+                 success_rate_forward / _backward: the trials facing the way they walk or \
+                 walking backward; every rate X has X_ci95_low / X_ci95_high, its Wilson 95% \
+                 interval",
                 spec.margin_m, spec.time_limit_s
             ));
             report.traversal = Some(t);
@@ -350,10 +364,15 @@ fn run_traversal(
         table_vi_column: spec.table_vi_column,
         mode: spec.mode,
         speed_mps: spec.speed_mps,
+        time_limit_s: spec.time_limit_s,
         trials: 0,
         successes: 0,
         success_rate: None,
+        success_rate_ci95: None,
         terminations: 0,
+        timeouts: 0,
+        fall_rate: None,
+        timeout_rate: None,
         cases: Vec::new(),
         outcomes: Vec::new(),
     };
@@ -398,12 +417,14 @@ fn run_traversal(
         merge_tracking(tracking, &rollout);
         let mut c = TraversalCaseReport {
             name: case.name,
+            group: case.group,
             obstacle: case.obstacle,
             direction,
             distance_m: distance,
             trials: envs,
             successes: 0,
             success_rate: None,
+            success_rate_ci95: None,
             terminations: 0,
             timeouts: 0,
             mean_progress_m: Summary::of(best.iter().map(|&b| f64::from(b))).mean,
@@ -424,28 +445,58 @@ fn run_traversal(
             });
         }
         c.success_rate = rate(c.successes, c.trials);
+        c.success_rate_ci95 = wilson_interval(c.successes, c.trials);
         report.trials += c.trials;
         report.successes += c.successes;
         report.terminations += c.terminations;
+        report.timeouts += c.timeouts;
         report.cases.push(c);
     }
     report.success_rate = rate(report.successes, report.trials);
+    report.success_rate_ci95 = wilson_interval(report.successes, report.trials);
+    report.fall_rate = rate(report.terminations, report.trials);
+    report.timeout_rate = rate(report.timeouts, report.trials);
     Ok(report)
 }
 
+/// Successes and trials of the cases `pick` selects.
+fn tally(t: &TraversalReport, pick: impl Fn(&TraversalCaseReport) -> bool) -> (usize, usize) {
+    t.cases
+        .iter()
+        .filter(|c| pick(c))
+        .fold((0, 0), |(s, n), c| (s + c.successes, n + c.trials))
+}
+
 fn traversal_metrics(t: &TraversalReport, m: &mut BTreeMap<String, f64>) {
-    if let Some(r) = t.success_rate {
-        m.insert("success_rate".into(), r);
-    }
+    insert_rate(m, "success_rate", t.successes, t.trials);
+    insert_rate(m, "fall_rate", t.terminations, t.trials);
+    insert_rate(m, "timeout_rate", t.timeouts, t.trials);
     m.insert("trials".into(), t.trials as f64);
     m.insert("successes".into(), t.successes as f64);
     m.insert("terminations".into(), t.terminations as f64);
+    m.insert("timeouts".into(), t.timeouts as f64);
+    m.insert("time_limit_s".into(), f64::from(t.time_limit_s));
     let progress = Summary::of(t.outcomes.iter().map(|o| f64::from(o.progress_m)));
     m.insert("mean_progress_m".into(), progress.mean);
-    for c in &t.cases {
-        if let Some(r) = c.success_rate {
-            m.insert(format!("case/{}/success_rate", c.name), r);
+    for (way, forward) in [("forward", true), ("backward", false)] {
+        let (hits, trials) = tally(t, |c| (c.direction > 0.0) == forward);
+        if trials > 0 {
+            insert_rate(m, &format!("success_rate_{way}"), hits, trials);
+            m.insert(format!("trials_{way}"), trials as f64);
         }
+    }
+    for c in &t.cases {
+        insert_rate(
+            m,
+            &format!("case/{}/success_rate", c.name),
+            c.successes,
+            c.trials,
+        );
+    }
+    // A slope's `up` and `down` over both directions (the names the slope cases had).
+    for group in ["up", "down"] {
+        let (hits, trials) = tally(t, |c| c.group == Some(group));
+        insert_rate(m, &format!("case/{group}/success_rate"), hits, trials);
     }
 }
 
@@ -458,6 +509,11 @@ fn run_tracking(
     tracking: &mut RunTotals,
 ) -> Result<(), EvalError> {
     let config = tracking_config(&options.base_config, spec)?;
+    if spec.pushes && config.push_interval_steps().is_none() {
+        tracing::warn!(
+            "pushes asked for, but the base config's domain randomisation is off: no pushes"
+        );
+    }
     let steps = steps_for(&config, spec.duration_s);
     let mut rollout = Rollout::new(options.make_env(config, Terrain::Flat, n, options.seed)?);
     observer.begin_case(0, spec.mode.name(), rollout.env());

@@ -5,8 +5,13 @@
 //!   slopes in quad mode; 30 deg slopes, 12 cm stairs up and 15 cm stairs down in biped mode;
 //!   20 trials each), biped -> quad transitions on flat ground with commands in [-0.5, 0.5]
 //!   m/s, quad -> biped switches at 1.5 m/s with the transition time, the CoM (base) height
-//!   through the switch, velocity tracking per mode, plus flat sanity walks and the composite
-//!   `table_vi`.
+//!   through the switch, velocity tracking per mode (also under Table V's pushes:
+//!   `tracking_*_push`), plus flat sanity walks and the composite `table_vi`.
+//! - Honest figures: every success rate X comes with `X_ci95_low` / `X_ci95_high` (Wilson);
+//!   tracking errors with those of a policy that does nothing under the same commands
+//!   (`tracking/<mode>/do_nothing/...`); transitions with a strict count (no body but the feet
+//!   on the terrain); traversals walk half forward, half backward, with falls and time-outs
+//!   apart.
 //! - Controllers ([`Policies`]): one unified policy, or the two-policy baseline (a quad and a
 //!   biped policy switched at the mode change).
 //! - Runs ([`evaluate`]): each case builds a `VecEnv` from the base task config with the

@@ -29,6 +29,9 @@ pub struct TraversalTrial {
 pub struct TraversalCaseReport {
     /// Case name.
     pub name: &'static str,
+    /// `up` or `down` for a slope case (see [`crate::scenario::TraversalCase::group`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub group: Option<&'static str>,
     /// The obstacle.
     pub obstacle: Obstacle,
     /// +1 forward, -1 backward.
@@ -41,6 +44,8 @@ pub struct TraversalCaseReport {
     pub successes: usize,
     /// Crossed / trials.
     pub success_rate: Option<f64>,
+    /// Wilson 95% interval of the success rate.
+    pub success_rate_ci95: Option<[f64; 2]>,
     /// Ended by a base contact.
     pub terminations: usize,
     /// Ran out of time.
@@ -58,14 +63,24 @@ pub struct TraversalReport {
     pub mode: Mode,
     /// Commanded speed (m/s).
     pub speed_mps: f32,
+    /// Time allowed per trial (s).
+    pub time_limit_s: f32,
     /// Trials over all cases.
     pub trials: usize,
     /// Crossed.
     pub successes: usize,
     /// Crossed / trials.
     pub success_rate: Option<f64>,
-    /// Ended by a base contact.
+    /// Wilson 95% interval of the success rate.
+    pub success_rate_ci95: Option<[f64; 2]>,
+    /// Ended by a base contact (falls).
     pub terminations: usize,
+    /// Neither crossed nor fell within the time limit.
+    pub timeouts: usize,
+    /// Falls / trials.
+    pub fall_rate: Option<f64>,
+    /// Time-outs / trials.
+    pub timeout_rate: Option<f64>,
     /// Per case.
     pub cases: Vec<TraversalCaseReport>,
     /// Per trial.

@@ -14,9 +14,9 @@
 //!   still in its first episode and in the `from` posture at T is a trial.
 //!
 //! Every scenario starts calm (joints at the default pose, no initial velocity, level base: the
-//! training distribution of Table IV is for learning, not for measuring) and turns pushes off;
-//! the rest of the domain randomisation and the observation noise stay as the base config has
-//! them.
+//! training distribution of Table IV is for learning, not for measuring) and turns pushes off
+//! (but `tracking_*_push`, which has Table V's); the rest of the domain randomisation and the
+//! observation noise stay as the base config has them.
 
 use serde::Serialize;
 use unigait_sim::task::{TaskConfig, TaskMode};
@@ -64,8 +64,11 @@ impl Mode {
 /// One terrain and direction of a traversal scenario.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct TraversalCase {
-    /// Short name (`forward`, `backward`, `up`, `down`).
+    /// Short name (`forward`, `backward`, `up_forward`, `down_backward`, ...).
     pub name: &'static str,
+    /// The part of the terrain a slope case crosses (`up` or `down`), whichever way the robot
+    /// faces; None for stairs and flat ground, whose cases differ by direction only.
+    pub group: Option<&'static str>,
     /// What the robot crosses.
     pub obstacle: Obstacle,
     /// +1 walks forward (command vx > 0), -1 backward.
@@ -84,7 +87,7 @@ pub struct TraversalSpec {
     pub cases: Vec<TraversalCase>,
     /// Success distance beyond the obstacle's far edge (m).
     pub margin_m: f32,
-    /// Time allowed (s).
+    /// Time allowed (s): see [`traversal_time_limit_s`].
     pub time_limit_s: f32,
     /// The Table VI column this reproduces.
     pub table_vi_column: Option<&'static str>,
@@ -118,6 +121,9 @@ pub struct TrackingSpec {
     pub mode: Mode,
     /// Run time (s).
     pub duration_s: f32,
+    /// Table V's pushes on: every [`PUSH_INTERVAL_S`] the base's xy velocity is shifted by
+    /// U(-[`PUSH_VELOCITY_MPS`], +[`PUSH_VELOCITY_MPS`]) per axis.
+    pub pushes: bool,
 }
 
 /// What a scenario measures.
@@ -154,33 +160,80 @@ const QUAD_SPEED: f32 = 0.8;
 const BIPED_SPEED: f32 = 0.4;
 /// Trials per Table VI column in the paper.
 const TABLE_VI_TRIALS: usize = 20;
+/// Success distance beyond the obstacle's far edge (m).
+const MARGIN_M: f32 = 0.5;
+/// The time limit every traversal had before it followed the commanded speed (s); no limit is
+/// shorter, so the quad columns keep theirs.
+const MIN_TIME_LIMIT_S: f32 = 16.0;
+/// Slack on the time the commanded speed needs to cover the distance.
+const TIME_SLACK: f32 = 1.5;
+/// Table V's push interval (s).
+pub const PUSH_INTERVAL_S: f32 = 10.0;
+/// Table V's push: the base's xy velocity is shifted by up to this much per axis (m/s).
+pub const PUSH_VELOCITY_MPS: f32 = 1.0;
 
+/// Time a traversal in `mode` allows to cover `distance_m` at `speed_mps`: the distance 1.5
+/// times over at the commanded speed, after the time to settle into the gait (1 s on four legs,
+/// [`crate::metrics::UPRIGHT_SETTLE_S`] = 2 s to get up onto the front legs), and never under
+/// 16 s. With every tile's 4 m to its edge plus the 0.5 m margin (4.5 m):
+/// - quad at 0.8 m/s: 4.5 / 0.8 x 1.5 + 1 = 9.4 s, so the 16 s floor;
+/// - biped at 0.4 m/s: 4.5 / 0.4 x 1.5 + 2 = 18.9 s (it had 16 s, and at the 0.33 m/s the
+///   shipped policy walks, 4.5 m takes 13.6 s after the 2 s of getting up).
+pub fn traversal_time_limit_s(mode: Mode, speed_mps: f32, distance_m: f32) -> f32 {
+    let settle = match mode {
+        Mode::Quad => crate::metrics::TRACKING_SETTLE_S,
+        Mode::Biped => crate::metrics::UPRIGHT_SETTLE_S,
+    };
+    (distance_m / speed_mps * TIME_SLACK + settle).max(MIN_TIME_LIMIT_S)
+}
+
+/// Forward and backward across `obstacle`, as the paper's 10 + 10 trials.
 fn both_ways(obstacle: Obstacle) -> Vec<TraversalCase> {
     vec![
         TraversalCase {
             name: "forward",
+            group: None,
             obstacle,
             direction: 1.0,
         },
         TraversalCase {
             name: "backward",
+            group: None,
             obstacle,
             direction: -1.0,
         },
     ]
 }
 
+/// Up and down the slope, each forward and backward: half the trials face each way (the
+/// paper's 10 + 10) and both halves climb and descend.
 fn up_and_down(degrees: f32) -> Vec<TraversalCase> {
+    let up = Obstacle::SlopeUp { degrees };
+    let down = Obstacle::SlopeDown { degrees };
     vec![
         TraversalCase {
-            name: "up",
-            obstacle: Obstacle::SlopeUp { degrees },
+            name: "up_forward",
+            group: Some("up"),
+            obstacle: up,
             direction: 1.0,
         },
         TraversalCase {
-            name: "down",
-            obstacle: Obstacle::SlopeDown { degrees },
+            name: "down_forward",
+            group: Some("down"),
+            obstacle: down,
             direction: 1.0,
+        },
+        TraversalCase {
+            name: "up_backward",
+            group: Some("up"),
+            obstacle: up,
+            direction: -1.0,
+        },
+        TraversalCase {
+            name: "down_backward",
+            group: Some("down"),
+            obstacle: down,
+            direction: -1.0,
         },
     ]
 }
@@ -192,20 +245,39 @@ fn traversal(
     cases: Vec<TraversalCase>,
     column: Option<&'static str>,
 ) -> Scenario {
+    let speed_mps = match mode {
+        Mode::Quad => QUAD_SPEED,
+        Mode::Biped => BIPED_SPEED,
+    };
+    let distance = cases
+        .iter()
+        .map(|c| c.obstacle.half_extent() + MARGIN_M)
+        .fold(0.0, f32::max);
     Scenario {
         name,
         description,
         default_envs: TABLE_VI_TRIALS,
         kind: ScenarioKind::Traversal(TraversalSpec {
             mode,
-            speed_mps: match mode {
-                Mode::Quad => QUAD_SPEED,
-                Mode::Biped => BIPED_SPEED,
-            },
+            speed_mps,
             cases,
-            margin_m: 0.5,
-            time_limit_s: 16.0,
+            margin_m: MARGIN_M,
+            time_limit_s: traversal_time_limit_s(mode, speed_mps, distance),
             table_vi_column: column,
+        }),
+    }
+}
+
+fn tracking(name: &'static str, description: &'static str, mode: Mode, pushes: bool) -> Scenario {
+    Scenario {
+        name,
+        description,
+        default_envs: 64,
+        kind: ScenarioKind::Tracking(TrackingSpec {
+            mode,
+            // One whole episode: the milestones ask for 18 s without a termination.
+            duration_s: 18.0,
+            pushes,
         }),
     }
 }
@@ -229,14 +301,16 @@ pub fn scenarios() -> Vec<Scenario> {
         ),
         traversal(
             "slope_quad",
-            "Table VI: 30 deg slope, quadrupedal (10 ascending + 10 descending)",
+            "Table VI: 30 deg slope, quadrupedal (10 forward + 10 backward, each half up and \
+             half down)",
             Mode::Quad,
             up_and_down(30.0),
             Some("30° Slope (q)"),
         ),
         traversal(
             "slope_biped",
-            "Table VI: 30 deg slope, bipedal (10 ascending + 10 descending)",
+            "Table VI: 30 deg slope, bipedal (10 forward + 10 backward, each half up and half \
+             down)",
             Mode::Biped,
             up_and_down(30.0),
             Some("30° Slope (b)"),
@@ -261,6 +335,7 @@ pub fn scenarios() -> Vec<Scenario> {
             Mode::Quad,
             vec![TraversalCase {
                 name: "forward",
+                group: None,
                 obstacle: Obstacle::Flat,
                 direction: 1.0,
             }],
@@ -272,6 +347,7 @@ pub fn scenarios() -> Vec<Scenario> {
             Mode::Biped,
             vec![TraversalCase {
                 name: "forward",
+                group: None,
                 obstacle: Obstacle::Flat,
                 direction: 1.0,
             }],
@@ -310,26 +386,32 @@ pub fn scenarios() -> Vec<Scenario> {
                 max_transition_s: 1.9,
             }),
         },
-        Scenario {
-            name: "tracking_quad",
-            description: "Velocity tracking error, quadrupedal, commands from the training ranges",
-            default_envs: 64,
-            kind: ScenarioKind::Tracking(TrackingSpec {
-                mode: Mode::Quad,
-                // One whole episode: the milestones ask for 18 s without a termination.
-                duration_s: 18.0,
-            }),
-        },
-        Scenario {
-            name: "tracking_biped",
-            description: "Velocity tracking error, bipedal (upright steps), commands from the \
-                          training ranges",
-            default_envs: 64,
-            kind: ScenarioKind::Tracking(TrackingSpec {
-                mode: Mode::Biped,
-                duration_s: 18.0,
-            }),
-        },
+        tracking(
+            "tracking_quad",
+            "Velocity tracking error, quadrupedal, commands from the training ranges",
+            Mode::Quad,
+            false,
+        ),
+        tracking(
+            "tracking_biped",
+            "Velocity tracking error, bipedal (upright steps), commands from the training ranges",
+            Mode::Biped,
+            false,
+        ),
+        tracking(
+            "tracking_quad_push",
+            "Velocity tracking error, quadrupedal, with Table V's pushes (base xy velocity \
+             shifted by U(-1, 1) m/s every 10 s)",
+            Mode::Quad,
+            true,
+        ),
+        tracking(
+            "tracking_biped_push",
+            "Velocity tracking error, bipedal (upright steps), with Table V's pushes (base xy \
+             velocity shifted by U(-1, 1) m/s every 10 s)",
+            Mode::Biped,
+            true,
+        ),
     ]
 }
 
@@ -438,11 +520,105 @@ pub fn transition_config(
     Ok(c)
 }
 
-/// The config of a tracking scenario: the mode pinned, commands as the base config draws them.
+/// The config of a tracking scenario: the mode pinned, commands as the base config draws them,
+/// Table V's pushes if the spec asks for them (they act only with the base config's domain
+/// randomisation enabled, as in training).
 pub fn tracking_config(base: &TaskConfig, spec: &TrackingSpec) -> Result<TaskConfig, EvalError> {
     let mut c = calm_config(base, spec.duration_s);
     c.commands.resampling_time_s = base.commands.resampling_time_s;
+    if spec.pushes {
+        c.randomization.push_interval_s = PUSH_INTERVAL_S;
+        c.randomization.push_velocity = PUSH_VELOCITY_MPS;
+    }
     pin_mode(&mut c, spec.mode);
     c.validate()?;
     Ok(c)
+}
+
+#[cfg(test)]
+mod test {
+    use super::*;
+
+    fn traversal_spec(name: &str) -> TraversalSpec {
+        match scenario(name).expect(name).kind {
+            ScenarioKind::Traversal(t) => t,
+            other => panic!("{name} is no traversal: {other:?}"),
+        }
+    }
+
+    #[test]
+    fn time_limits_follow_the_commanded_speed() {
+        // 4 m to the tile's edge + 0.5 m: 4.5 / 0.4 * 1.5 + 2 = 18.875 s on two legs; on four,
+        // 4.5 / 0.8 * 1.5 + 1 = 9.44 s, under the 16 s floor.
+        assert_eq!(Obstacle::Flat.half_extent(), 4.0);
+        for name in [
+            "slope_biped",
+            "stairs_up_biped",
+            "stairs_down_biped",
+            "flat_biped",
+        ] {
+            let t = traversal_spec(name);
+            assert!((t.time_limit_s - 18.875).abs() < 1e-4, "{name}: {t:?}");
+        }
+        for name in [
+            "slope_quad",
+            "stairs_up_quad",
+            "stairs_down_quad",
+            "flat_quad",
+        ] {
+            assert_eq!(traversal_spec(name).time_limit_s, 16.0, "{name}");
+        }
+        assert!((traversal_time_limit_s(Mode::Quad, 0.5, 6.0) - 19.0).abs() < 1e-5);
+    }
+
+    #[test]
+    fn table_vi_columns_walk_half_forward_half_backward() {
+        let columns = table_vi_scenarios();
+        assert_eq!(columns.len(), 6);
+        for s in columns {
+            let ScenarioKind::Traversal(t) = &s.kind else {
+                panic!("{}", s.name)
+            };
+            let forward = t.cases.iter().filter(|c| c.direction > 0.0).count();
+            let backward = t.cases.iter().filter(|c| c.direction < 0.0).count();
+            assert_eq!(forward, backward, "{}", s.name);
+            assert_eq!(s.default_envs % t.cases.len(), 0, "{}: even split", s.name);
+            if s.name.starts_with("slope") {
+                // Both ways up and both ways down.
+                let names: Vec<_> = t.cases.iter().map(|c| c.name).collect();
+                assert_eq!(
+                    names,
+                    ["up_forward", "down_forward", "up_backward", "down_backward"]
+                );
+                for c in &t.cases {
+                    let up = matches!(c.obstacle, Obstacle::SlopeUp { .. });
+                    assert_eq!(c.group, Some(if up { "up" } else { "down" }), "{c:?}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn push_scenarios_push_as_table_v() {
+        let base = TaskConfig::embedded_default();
+        for (name, pushes) in [
+            ("tracking_quad", false),
+            ("tracking_biped", false),
+            ("tracking_quad_push", true),
+            ("tracking_biped_push", true),
+        ] {
+            let ScenarioKind::Tracking(spec) = scenario(name).expect(name).kind else {
+                panic!("{name}")
+            };
+            assert_eq!(spec.pushes, pushes, "{name}");
+            let c = tracking_config(&base, &spec).expect(name);
+            // 10 s at the 50 Hz policy rate.
+            let want = pushes.then_some(500);
+            assert_eq!(c.push_interval_steps(), want, "{name}");
+            if pushes {
+                assert_eq!(c.randomization.push_velocity, 1.0);
+            }
+        }
+        assert!(scenario_names().contains(&"tracking_biped_push"));
+    }
 }

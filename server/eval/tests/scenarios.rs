@@ -40,17 +40,51 @@ fn collapse() -> Policies {
 
 #[test]
 fn standing_still_never_crosses() {
-    for name in ["flat_quad", "stairs_up_quad"] {
-        let report = evaluate(name, &stand_still(), &options(2), &mut NoObserver).expect(name);
+    let mut last = None;
+    for (name, envs) in [("flat_quad", 2), ("slope_quad", 4)] {
+        let report = evaluate(name, &stand_still(), &options(envs), &mut NoObserver).expect(name);
         let t = report.traversal.as_ref().expect("traversal report");
-        assert_eq!(t.trials, 2, "{name}");
+        assert_eq!(t.trials, envs, "{name}");
         assert_eq!(t.successes, 0, "{name}: {:?}", t.outcomes);
-        assert_eq!(report.metrics["success_rate"], 0.0, "{name}");
+        let m = &report.metrics;
+        assert_eq!(m["success_rate"], 0.0, "{name}");
+        // Standing still is a time-out, not a fall.
+        assert_eq!((m["fall_rate"], m["timeout_rate"]), (0.0, 1.0), "{name}");
+        assert_eq!((t.terminations, t.timeouts), (0, envs), "{name}");
+        let [low, high] = wilson_interval(0, envs).expect("trials");
+        assert_eq!(m["success_rate_ci95_low"], low);
+        assert_eq!(m["success_rate_ci95_high"], high);
+        assert!(high > 0.3, "{envs} trials say little: {high}");
+        assert_eq!(m["timeout_rate_ci95_high"], 1.0);
+        assert_eq!(m["trials"], envs as f64);
+        assert_eq!(m["time_limit_s"], 16.0);
         for o in &t.outcomes {
             assert!(o.progress_m < 1.0, "{name}: {o:?}");
             assert_ne!(o.end, TraversalEnd::Crossed);
         }
+        last = Some(report);
     }
+    // The slope's 4 trials: one each way up and down, counted by direction and by slope part.
+    let report = last.expect("slope_quad ran");
+    let m = &report.metrics;
+    for key in ["trials_forward", "trials_backward"] {
+        assert_eq!(m[key], 2.0, "{key}");
+    }
+    for key in [
+        "success_rate_forward",
+        "success_rate_backward",
+        "case/up/success_rate",
+        "case/down/success_rate",
+        "case/up_backward/success_rate",
+        "case/down_forward/success_rate_ci95_high",
+    ] {
+        assert!(m.contains_key(key), "no {key}: {m:?}");
+    }
+    let json = report.to_json();
+    assert!(
+        json.contains("\"success_rate_backward_ci95_low\""),
+        "{json}"
+    );
 }
 
 #[test]
@@ -435,4 +469,66 @@ fn a_collapsing_robot_shows_leg_contacts_before_it_falls() {
     }
     assert!(fell, "the scripted fall ends an episode");
     assert!(touched, "knees or head are down before the trunk");
+}
+
+/// Records the fastest base (xy, any env) before and after the first push at 10 s.
+#[derive(Default)]
+struct PushWatch {
+    before: f32,
+    after: f32,
+}
+
+impl StepObserver for PushWatch {
+    fn after_step(&mut self, _: usize, step: u32, env: &VecEnv) {
+        // The push lands in step 500's task update; the next read-back shows it.
+        let slot = match step {
+            400..=500 => &mut self.before,
+            501..=505 => &mut self.after,
+            _ => return,
+        };
+        for i in 0..env.num_envs() {
+            let v = probe(env, i).velocity_xy;
+            *slot = slot.max(v[0].hypot(v[1]));
+        }
+    }
+}
+
+#[test]
+fn push_scenarios_push_and_standing_still_scores_the_do_nothing_baseline() {
+    let mut watch = PushWatch::default();
+    let report = evaluate(
+        "tracking_quad_push",
+        &stand_still(),
+        &options(4),
+        &mut watch,
+    )
+    .expect("runs");
+    assert!(watch.before < 0.1, "standing still: {}", watch.before);
+    assert!(
+        watch.after > 0.3,
+        "pushed by up to 1 m/s per axis: {}",
+        watch.after
+    );
+    assert!(report.notes.iter().any(|n| n.contains("pushes on")));
+    // Without pushes, a robot that stands still misses by the command: its error is the
+    // do-nothing baseline computed from the same commands (up to its sway).
+    let report = evaluate(
+        "tracking_quad",
+        &stand_still(),
+        &options(2),
+        &mut NoObserver,
+    )
+    .expect("runs");
+    let m = &report.metrics;
+    for name in [
+        "lin_vel_error_mps",
+        "lin_vel_error_forward_mps",
+        "lin_vel_error_lateral_mps",
+        "ang_vel_error_radps",
+    ] {
+        let real = m[&format!("tracking/quad/{name}")];
+        let idle = m[&format!("tracking/quad/do_nothing/{name}")];
+        assert!(idle > 0.05, "{name}: the commands ask for motion: {idle}");
+        assert!((real - idle).abs() < 0.03, "{name}: {real} vs {idle}");
+    }
 }
