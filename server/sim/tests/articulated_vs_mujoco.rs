@@ -14,133 +14,41 @@
 //! relative error of the entries above 1e-6 of that scale. The same figures for the tree cast
 //! to f32 are printed too (not asserted: they tell what an f32 step can expect).
 
+use serde_json::Value;
 use unigait_sim::physics::articulated::{ArticulatedTree, Real, Workspace};
 use unigait_sim::robot::RobotModel;
 
 const FIXTURE: &str = include_str!("data/articulated_fixture.json");
 
-/// A JSON value: the sim crate has no JSON parser and a test cannot add one.
-#[derive(Debug)]
-enum Json {
-    Num(f64),
-    Str(String),
-    Arr(Vec<Json>),
-    Obj(Vec<(String, Json)>),
+/// Reading the fixture's fields (a malformed fixture is a test failure, said by name).
+trait Field {
+    fn num(&self) -> f64;
+    fn str(&self) -> &str;
+    fn arr(&self) -> &[Value];
+    fn nums(&self) -> Vec<f64>;
 }
 
-impl Json {
-    fn get(&self, key: &str) -> &Json {
-        match self {
-            Json::Obj(fields) => fields
-                .iter()
-                .find(|(k, _)| k == key)
-                .map(|(_, v)| v)
-                .unwrap_or_else(|| panic!("no key `{key}`")),
-            _ => panic!("not an object"),
-        }
-    }
-
+impl Field for Value {
     fn num(&self) -> f64 {
-        match self {
-            Json::Num(x) => *x,
-            _ => panic!("not a number: {self:?}"),
-        }
+        self.as_f64()
+            .unwrap_or_else(|| panic!("not a number: {self}"))
     }
 
     fn str(&self) -> &str {
-        match self {
-            Json::Str(s) => s,
-            _ => panic!("not a string"),
-        }
+        self.as_str()
+            .unwrap_or_else(|| panic!("not a string: {self}"))
     }
 
-    fn arr(&self) -> &[Json] {
-        match self {
-            Json::Arr(a) => a,
-            _ => panic!("not an array"),
-        }
+    fn arr(&self) -> &[Value] {
+        self.as_array()
+            .unwrap_or_else(|| panic!("not an array: {self}"))
     }
 
     fn nums(&self) -> Vec<f64> {
-        self.arr().iter().map(Json::num).collect()
+        self.arr().iter().map(Field::num).collect()
     }
 }
 
-/// Parse the fixture (objects, arrays, numbers, strings without escapes).
-fn parse(text: &str) -> Json {
-    fn skip(b: &[u8], i: &mut usize) {
-        while *i < b.len() && b[*i].is_ascii_whitespace() {
-            *i += 1;
-        }
-    }
-    fn value(b: &[u8], i: &mut usize) -> Json {
-        skip(b, i);
-        match b[*i] {
-            b'{' => {
-                *i += 1;
-                let mut fields = Vec::new();
-                loop {
-                    skip(b, i);
-                    if b[*i] == b'}' {
-                        *i += 1;
-                        return Json::Obj(fields);
-                    }
-                    let Json::Str(key) = value(b, i) else {
-                        panic!("object key at {i}")
-                    };
-                    skip(b, i);
-                    assert_eq!(b[*i], b':');
-                    *i += 1;
-                    fields.push((key, value(b, i)));
-                    skip(b, i);
-                    if b[*i] == b',' {
-                        *i += 1;
-                    }
-                }
-            }
-            b'[' => {
-                *i += 1;
-                let mut items = Vec::new();
-                loop {
-                    skip(b, i);
-                    if b[*i] == b']' {
-                        *i += 1;
-                        return Json::Arr(items);
-                    }
-                    items.push(value(b, i));
-                    skip(b, i);
-                    if b[*i] == b',' {
-                        *i += 1;
-                    }
-                }
-            }
-            b'"' => {
-                let start = *i + 1;
-                let len = b[start..]
-                    .iter()
-                    .position(|&c| c == b'"')
-                    .expect("string end");
-                *i = start + len + 1;
-                Json::Str(String::from_utf8(b[start..start + len].to_vec()).expect("utf8"))
-            }
-            _ => {
-                let start = *i;
-                while *i < b.len()
-                    && matches!(b[*i], b'0'..=b'9' | b'-' | b'+' | b'.' | b'e' | b'E')
-                {
-                    *i += 1;
-                }
-                let s = std::str::from_utf8(&b[start..*i]).expect("ascii");
-                Json::Num(s.parse().unwrap_or_else(|_| panic!("bad number `{s}`")))
-            }
-        }
-    }
-    let mut i = 0;
-    value(text.as_bytes(), &mut i)
-}
-
-/// Largest entry error over the largest reference entry, and the largest per-entry relative
-/// error among entries above 1e-6 of that scale.
 fn errors(got: &[f64], want: &[f64]) -> (f64, f64) {
     let scale = want.iter().fold(0.0f64, |m, w| m.max(w.abs()));
     let mut worst = 0.0f64;
@@ -178,24 +86,19 @@ fn dynamics<T: Real>(
 
 #[test]
 fn articulated_mass_matrix_and_bias_match_mujoco() {
-    let fixture = parse(FIXTURE);
-    let armature = fixture.get("armature").num();
-    let gravity = fixture.get("gravity").num();
+    let fixture: Value = serde_json::from_str(FIXTURE).expect("the fixture is JSON");
+    let armature = fixture["armature"].num();
+    let gravity = fixture["gravity"].num();
     let tree = ArticulatedTree::from_robot(&RobotModel::go2(), armature).expect("Go2 tree");
-    let names: Vec<&str> = fixture
-        .get("joint_names")
-        .arr()
-        .iter()
-        .map(Json::str)
-        .collect();
+    let names: Vec<&str> = fixture["joint_names"].arr().iter().map(Field::str).collect();
     assert_eq!(
         tree.joint_names(),
         names.as_slice(),
         "same DoF order as MuJoCo"
     );
-    assert_eq!(fixture.get("nv").num() as usize, tree.nv());
+    assert_eq!(fixture["nv"].num() as usize, tree.nv());
     let tree32 = tree.cast::<f32>();
-    let states = fixture.get("states").arr();
+    let states = fixture["states"].arr();
     assert!(states.len() >= 10, "{} states", states.len());
     let mut worst = [0.0f64; 4];
     let mut worst32 = [0.0f64; 4];
@@ -203,11 +106,11 @@ fn articulated_mass_matrix_and_bias_match_mujoco() {
         "state                  M rel      M entry    bias rel   bias entry | f32: M rel  bias rel"
     );
     for state in states {
-        let name = state.get("name").str();
-        let qpos = state.get("qpos").nums();
-        let qvel = state.get("qvel").nums();
-        let m_ref = state.get("mass_matrix").nums();
-        let b_ref = state.get("bias").nums();
+        let name = state["name"].str();
+        let qpos = state["qpos"].nums();
+        let qvel = state["qvel"].nums();
+        let m_ref = state["mass_matrix"].nums();
+        let b_ref = state["bias"].nums();
         let (m, b) = dynamics(&tree, &qpos, &qvel, gravity);
         let (m_rel, m_entry) = errors(&m, &m_ref);
         let (b_rel, b_entry) = errors(&b, &b_ref);
@@ -249,12 +152,12 @@ fn articulated_mass_matrix_and_bias_match_mujoco() {
 /// axes instead of its own, is far from MuJoCo's figures.
 #[test]
 fn articulated_check_sees_a_different_robot_or_convention() {
-    let fixture = parse(FIXTURE);
-    let state = &fixture.get("states").arr()[2];
-    let (qpos, qvel) = (state.get("qpos").nums(), state.get("qvel").nums());
-    let m_ref = state.get("mass_matrix").nums();
-    let b_ref = state.get("bias").nums();
-    let gravity = fixture.get("gravity").num();
+    let fixture: Value = serde_json::from_str(FIXTURE).expect("the fixture is JSON");
+    let state = &fixture["states"].arr()[2];
+    let (qpos, qvel) = (state["qpos"].nums(), state["qvel"].nums());
+    let m_ref = state["mass_matrix"].nums();
+    let b_ref = state["bias"].nums();
+    let gravity = fixture["gravity"].num();
     let bare = ArticulatedTree::from_robot(&RobotModel::go2(), 0.0).expect("Go2 tree");
     let (m, _) = dynamics(&bare, &qpos, &qvel, gravity);
     let (m_rel, _) = errors(&m, &m_ref);
