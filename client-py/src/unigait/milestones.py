@@ -8,6 +8,7 @@ columns). No bound lives in code.
 
 from __future__ import annotations
 
+import dataclasses
 import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -19,7 +20,7 @@ from unigait.assets import milestones_file
 Evals = Mapping[str, Mapping[str, float]]
 
 _CHECK_KEYS = {"label", "scenario", "metric", "op", "bound", "group"}
-_MILESTONE_KEYS = {"description", "extends", "scenarios", "checks", "groups"}
+_MILESTONE_KEYS = {"description", "extends", "scenarios", "checks", "groups", "num_envs"}
 
 
 class MilestoneError(ValueError):
@@ -68,6 +69,13 @@ class Milestone:
     checks: tuple[Check, ...]
     #: Group name -> how many of its checks must pass.
     groups: Mapping[str, int]
+    #: Scenario -> envs it is always evaluated with (the paper's 20 trials for Table VI), whatever
+    #: the caller's default.
+    num_envs: Mapping[str, int] = dataclasses.field(default_factory=dict)
+
+    def envs_for(self, scenario: str, default: int) -> int:
+        """How many envs ``scenario`` is evaluated with."""
+        return int(self.num_envs.get(scenario, default))
 
     def criteria(self) -> int:
         """How many criteria there are: each ungrouped check, and each group as one."""
@@ -145,12 +153,15 @@ def parse_milestones(doc: Mapping[str, Any], source: str = "milestones") -> dict
                 raise MilestoneError(
                     f"{source}: [{name}] checks scenario {c.scenario!r}, not in its scenarios"
                 )
+        num_envs = {**(base.num_envs if base else {})}
+        num_envs.update({s: int(n) for s, n in raw.get("num_envs", {}).items()})
         milestone = Milestone(
             name,
             str(raw.get("description", "")),
             tuple(scenarios),
             (*(base.checks if base else ()), *checks),
             groups,
+            num_envs,
         )
         out[name] = milestone
         return milestone

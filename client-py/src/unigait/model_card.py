@@ -186,6 +186,10 @@ def model_card(card: CardInputs) -> str:
     # networks or from weights, and the shipped log covers the last stage alone: say what each
     # figure spans rather than call it the whole recipe's cost.
     wall_span = f" (iterations {min(logged)}-{max(logged)}, the shipped log)" if logged else ""
+    fixed = {s: n for m in card.milestones for s, n in m.num_envs.items()}
+    envs = f"{card.num_envs} envs per scenario" + "".join(
+        f" ({s}: {n})" for s, n in sorted(fixed.items())
+    )
     provenance = checkpoint.get("provenance", {})
     made = (
         f"recipe `{provenance['recipe']}`, stage {provenance.get('stage')} "
@@ -204,7 +208,7 @@ def model_card(card: CardInputs) -> str:
         f"- shipped from code: git commit `{card.commit}`",
         f"- networks: {_networks(checkpoint)}",
         f"- evaluated on seed {card.eval_seed} (training uses seeds below 100, checkpoint "
-        f"selection 2000 and up), {card.num_envs} envs per scenario; every figure here is in "
+        f"selection 2000 and up), {envs}; every figure here is in "
         "`eval.json`, the full reports in `reports/`",
         "",
     ]

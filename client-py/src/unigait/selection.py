@@ -67,7 +67,9 @@ def select_checkpoint(
             export_onnx(policy, onnx_path, dims["history_length"], dims["obs_dim"])
             onnx = onnx_path.read_bytes()
             evals = {
-                s: client.evaluate(onnx, s, num_envs=num_envs, seed=seed).metrics
+                s: client.evaluate(
+                    onnx, s, num_envs=milestone.envs_for(s, num_envs), seed=seed
+                ).metrics
                 for s in milestone.scenarios
             }
             met, margin = milestone.score(evals)

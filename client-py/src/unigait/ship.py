@@ -151,13 +151,14 @@ def ship(
         if diff > 1e-5:
             raise RuntimeError(f"the exported graph differs from torch by {diff:.2e} (relative)")
         onnx = (built / "policy.onnx").read_bytes()
-        scenarios: list[str] = []
+        envs: dict[str, int] = {}
         for m in milestones:
-            scenarios += [s for s in m.scenarios if s not in scenarios]
+            for s in m.scenarios:
+                envs.setdefault(s, m.envs_for(s, num_envs))
         evals: dict[str, dict[str, float]] = {}
         with Client(addresses[0]) as client:
-            for scenario in scenarios:
-                result = client.evaluate(onnx, scenario, num_envs=num_envs, seed=eval_seed)
+            for scenario, n in envs.items():
+                result = client.evaluate(onnx, scenario, num_envs=n, seed=eval_seed)
                 evals[scenario] = dict(sorted(result.metrics.items()))
                 report = built / "reports" / f"{scenario}_seed{eval_seed}.json"
                 report.write_text(result.report_json)

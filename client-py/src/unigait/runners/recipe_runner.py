@@ -98,7 +98,10 @@ def _evaluate_milestone(
         with Client(address, **connection) as client:
             for scenario in target.scenarios:
                 result = client.evaluate(
-                    onnx, scenario, num_envs=rule.validation_envs, seed=rule.validation_seed
+                    onnx,
+                    scenario,
+                    num_envs=target.envs_for(scenario, rule.validation_envs),
+                    seed=rule.validation_seed,
                 )
                 evals[scenario] = dict(result.metrics)
     met, margin = target.score(evals)
