@@ -149,6 +149,28 @@ def test_runner_trains_logs_checkpoints_and_resumes(tmp_path, capsys):
         "strict_success_rate": 0.5,
         "trials": 64,
     }
+    # A further milestone's table shows its own checks; the repeated ones in one line.
+    both = model_card(
+        CardInputs(
+            name="u",
+            recipe="unified_flat",
+            lineage=None,
+            milestones=[m2, milestone("M2+")],
+            checkpoint=staged.state_dict(),
+            evals={
+                "table_vi": {"stairs_up_biped/success_rate": 0.65, "stairs_up_biped/trials": 20}
+            },
+            rows=[],
+            commit="a",
+            eval_seed=1000,
+            num_envs=8,
+            ship_command="python -m unigait ship",
+        )
+    )
+    plus = both.split("## Milestone M2+: NOT met")[1].split("##")[0]
+    assert "Its checks of the tables above (M2): 0 of 7 met. Its own:" in plus
+    assert plus.count("| no |") == 4
+    assert "| 12 cm stairs up (b) | 0.6 | 0.65 | n/a | n/a | n/a | n/a | 20 |" in both
     strict = card_of({"transition_quad_to_biped": switch}, [])
     assert "| `transition_quad_to_biped` | 64 | 0.953 [0.87, 0.98] | 0.500 |" in strict
     # The wall time spans the shipped log alone, and the card says which iterations that is.

@@ -302,6 +302,29 @@ def _evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+#: ``ship`` flags that say where this ship read from or wrote to, not what it judged.
+_SHIP_PLACES = frozenset({"--run-dir", "--checkpoint", "--out-root", "--lineage"})
+
+
+def _reproducing_ship(argv: Sequence[str], recipe: str) -> str:
+    """The ``ship`` line a model card gives: this one, reading the recipe's fresh run.
+
+    (A fresh run is the recipe's own lineage, so ``--lineage`` goes too.)
+    """
+    kept: list[str] = []
+    skip = False
+    for arg in shlex.split(training_command(argv))[3:]:
+        if skip:
+            skip = False
+        elif arg in _SHIP_PLACES:
+            skip = True
+        elif arg.split("=", 1)[0] not in _SHIP_PLACES:
+            kept.append(arg)
+    return shlex.join(
+        ["python", "-m", "unigait", kept[0], "--run-dir", f"runs/{recipe}", *kept[1:]]
+    )
+
+
 def _ship(args: argparse.Namespace) -> int:
     from unigait.milestones import milestone
     from unigait.recipes import RecipeError, load_recipe
@@ -348,7 +371,7 @@ def _ship(args: argparse.Namespace) -> int:
             recipe.name,
             milestones,
             addresses,
-            ship_command=training_command(args.argv),
+            ship_command=_reproducing_ship(args.argv, recipe.name),
             out_root=Path(args.out_root),
             checkpoint_path=checkpoint,
             eval_seed=args.eval_seed,

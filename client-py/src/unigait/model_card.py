@@ -66,18 +66,36 @@ def _fmt(value: float | None, digits: int = 3) -> str:
     return "n/a" if value is None else f"{value:.{digits}f}"
 
 
-def milestone_table(milestone: Milestone, evals: Evals) -> list[str]:
-    """The milestone's checks as a Markdown table, and whether it is met."""
+def milestone_table(
+    milestone: Milestone, evals: Evals, shown: Sequence[Milestone] = ()
+) -> list[str]:
+    """The milestone's checks as a Markdown table, and whether it is met.
+
+    Checks a table in ``shown`` already has are not repeated: one line says how they stand.
+    """
     verdict = "met" if milestone.met(evals) else "NOT met"
     lines = [
         f"## Milestone {milestone.name}: {verdict}",
         "",
         f"{milestone.description}.",
         "",
+    ]
+    before = {c for m in shown for c in m.checks}
+    repeated = [c for c in milestone.checks if c in before]
+    if repeated:
+        passed = sum(c.passes(c.value(evals)) for c in repeated)
+        names = ", ".join(m.name for m in shown)
+        lines += [
+            f"Its checks of the tables above ({names}): {passed} of {len(repeated)} met. Its own:",
+            "",
+        ]
+    lines += [
         "| criterion | scenario | metric | bound | value | met |",
         "| --- | --- | --- | --- | --- | --- |",
     ]
     for c in milestone.checks:
+        if c in before:
+            continue
         v = c.value(evals)
         group = f" (at least {milestone.groups[c.group]} of the group)" if c.group else ""
         lines.append(
@@ -153,6 +171,51 @@ def honest_figures(evals: Evals) -> list[str]:
     return lines
 
 
+#: The paper's Table VI: (scenario, column, the paper's success rate).
+TABLE_VI = (
+    ("stairs_up_quad", "15 cm stairs up (q)", 1.0),
+    ("stairs_down_quad", "15 cm stairs down (q)", 1.0),
+    ("slope_quad", "30 deg slope (q)", 1.0),
+    ("slope_biped", "30 deg slope (b)", 1.0),
+    ("stairs_up_biped", "12 cm stairs up (b)", 0.6),
+    ("stairs_down_biped", "15 cm stairs down (b)", 1.0),
+)
+
+
+def table_vi(evals: Evals) -> list[str]:
+    """The paper's Table VI beside this policy's, with intervals and how the trials ended."""
+    figures = evals.get("table_vi", {})
+    if not figures:
+        return []
+
+    def rate(key: str) -> str:
+        if key not in figures:
+            return "n/a"
+        low, high = figures.get(f"{key}_ci95_low"), figures.get(f"{key}_ci95_high")
+        ci = f" [{low:.2f}, {high:.2f}]" if low is not None and high is not None else ""
+        return f"{figures[key]:.2f}{ci}"
+
+    lines = [
+        "## Table VI",
+        "",
+        "Half the trials walk forward, half backward (the paper: 10 each way of 20). Brackets: "
+        "Wilson 95% intervals. A trial that neither crossed nor fell timed out.",
+        "",
+        "| column | paper | this policy | forward | backward | fell | timed out | trials |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for scenario, column, paper in TABLE_VI:
+        trials = int(figures.get(f"{scenario}/trials", 0))
+        lines.append(
+            f"| {column} | {paper:.1f} | {rate(f'{scenario}/success_rate')} | "
+            f"{_fmt(figures.get(f'{scenario}/success_rate_forward'), 2)} | "
+            f"{_fmt(figures.get(f'{scenario}/success_rate_backward'), 2)} | "
+            f"{_fmt(figures.get(f'{scenario}/fall_rate'), 2)} | "
+            f"{_fmt(figures.get(f'{scenario}/timeout_rate'), 2)} | {trials} |"
+        )
+    return lines
+
+
 def _networks(checkpoint: Mapping[str, Any]) -> str:
     """The card's networks line: the checkpoint's sizes, and whether they are Table III's."""
     from unigait.config import TrainConfig, apply
@@ -212,13 +275,16 @@ def model_card(card: CardInputs) -> str:
         "`eval.json`, the full reports in `reports/`",
         "",
     ]
-    for milestone in card.milestones:
-        lines += [*milestone_table(milestone, card.evals), ""]
+    for k, milestone in enumerate(card.milestones):
+        lines += [*milestone_table(milestone, card.evals, card.milestones[:k]), ""]
     if card.selection:
         lines += [card.selection, ""]
     honest = honest_figures(card.evals)
     if honest:
         lines += [*honest, ""]
+    terrain = table_vi(card.evals)
+    if terrain:
+        lines += [*terrain, ""]
     biped = card.evals.get("tracking_biped", {})
     if "tracking/biped/mean_pitch_rad" in biped:
         lines += [
@@ -237,6 +303,11 @@ def model_card(card: CardInputs) -> str:
         f"python -m unigait train --recipe {card.recipe} --log-dir runs/{card.recipe}",
         card.ship_command,
         "```",
+        "",
+    ]
+    lines += [
+        "Where the recipe departs from the paper, and the measurement behind each departure: "
+        "`docs/src/recipes.md`.",
         "",
     ]
     if card.lineage and card.lineage != card.recipe:
