@@ -21,7 +21,7 @@ mod onnx;
 mod policy;
 mod sandbox;
 
-pub use checks::{ALLOWED_OPS, ModelLimits, check_model, parse_checked};
+pub use checks::{ALLOWED_OPS, ModelLimits, check_model, parse_checked, scan_wire};
 pub use error::PolicyError;
 pub use history::ObsHistory;
 pub use onnx::{InputLayout, OnnxPolicy};

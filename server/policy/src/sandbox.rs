@@ -255,8 +255,10 @@ impl SandboxedPolicy {
         spec: PolicySpec,
         limits: SandboxLimits,
     ) -> Result<Self, PolicyError> {
-        // Cheap checks first, here: a refused model costs no process.
-        crate::checks::parse_checked(bytes, &limits.model)?;
+        // A cheap bound from the wire format first, here: a refused model costs no process.
+        // Nothing is decoded in this process: protobuf amplifies (two bytes on the wire can be
+        // a whole struct in memory), so decoding happens in the worker, under its limits.
+        crate::checks::scan_wire(bytes, &limits.model)?;
         let mut child = Command::new(exe)
             .arg(WORKER_SUBCOMMAND)
             .env_clear()
