@@ -106,6 +106,10 @@ pub enum PolicyError {
     /// Loading or running the policy went over its worker's memory or time limit.
     #[error("{0}")]
     ResourceLimit(String),
+    /// The policy worker died on a signal that is not a limit (SIGSEGV, SIGILL, ...): the
+    /// model made the ONNX runtime crash, or something killed the worker.
+    #[error("{0}")]
+    Crashed(String),
     /// The policy worker could not be started or talked to (a server-side failure).
     #[error("policy worker: {0}")]
     Worker(String),

@@ -156,6 +156,9 @@ impl Drop for Watchdog {
     }
 }
 
+/// Builds a [`PolicyError`] of one kind from its message.
+type ErrorKind = fn(String) -> PolicyError;
+
 /// A running worker.
 struct Worker {
     child: Child,
@@ -164,8 +167,9 @@ struct Worker {
     watchdog: Watchdog,
     stderr: Arc<Mutex<Vec<u8>>>,
     stderr_thread: Option<JoinHandle<()>>,
-    /// Set once the worker died; every later call fails with this.
-    dead: Option<String>,
+    /// Set once the worker died; every later call fails with this (the error's kind, its
+    /// message).
+    dead: Option<(ErrorKind, String)>,
 }
 
 impl Drop for Worker {
@@ -351,6 +355,10 @@ impl SandboxedPolicy {
             .unwrap_or_default();
         let signal = status.and_then(|s| s.signal());
         let memory_mib = self.limits.memory_bytes >> 20;
+        let last = |n: usize| -> String {
+            let chars: Vec<char> = tail.trim_end().chars().collect();
+            chars[chars.len().saturating_sub(n)..].iter().collect()
+        };
         let error = if w.watchdog.fired() {
             let limit = if doing == "load the model" {
                 self.limits.load_timeout
@@ -366,35 +374,44 @@ impl SandboxedPolicy {
                 "the policy used more than the {} CPU seconds a policy may use",
                 self.limits.cpu_seconds
             ))
-        } else if tail.contains("memory allocation")
-            || tail.contains("overflowed its stack")
-            || tail.contains("allocat")
-            || matches!(
-                signal,
-                Some(libc::SIGABRT | libc::SIGSEGV | libc::SIGBUS | libc::SIGKILL)
-            )
-        {
+        } else if tail.contains("allocat") {
+            // Rust's "memory allocation of N bytes failed" before it aborts, or tract's
+            // "failed to allocate" panic: the address-space cap was reached.
             PolicyError::ResourceLimit(format!(
                 "the policy needed more than the {memory_mib} MiB of memory a policy may use to {doing}"
             ))
+        } else if tail.contains("overflowed its stack") {
+            PolicyError::ResourceLimit(format!(
+                "the policy overflowed the worker's stack trying to {doing} (a graph nested too deep)"
+            ))
+        } else if let Some(sig) = signal {
+            let tail = last(300);
+            PolicyError::Crashed(format!(
+                "the policy's worker crashed with {} trying to {doing}{}{tail}",
+                signal_name(sig),
+                if tail.is_empty() { "" } else { ": " }
+            ))
         } else {
             let status = status.map_or("unknown".to_string(), |s| s.to_string());
-            let tail: String = tail
-                .chars()
-                .rev()
-                .take(300)
-                .collect::<Vec<_>>()
-                .into_iter()
-                .rev()
-                .collect();
             PolicyError::Invalid {
                 message: format!(
-                    "the policy's worker stopped ({status}) trying to {doing}: {tail}"
+                    "the policy's worker stopped ({status}) trying to {doing}: {}",
+                    last(300)
                 ),
             }
         };
-        w.dead = Some(error.to_string());
+        let kind: ErrorKind = match &error {
+            PolicyError::ResourceLimit(_) => PolicyError::ResourceLimit,
+            PolicyError::Crashed(_) => PolicyError::Crashed,
+            _ => |message| PolicyError::Invalid { message },
+        };
+        w.dead = Some((kind, error.to_string()));
         error
+    }
+
+    /// The worker's process id (for monitoring, and for tests that kill it).
+    pub fn worker_pid(&self) -> u32 {
+        self.lock().child.id()
     }
 
     /// The worker's limits.
@@ -420,8 +437,8 @@ impl Policy for SandboxedPolicy {
             let n = hist.len() / w;
             let reply = {
                 let mut worker = self.lock();
-                if let Some(dead) = &worker.dead {
-                    return Err(PolicyError::ResourceLimit(dead.clone()));
+                if let Some((kind, message)) = &worker.dead {
+                    return Err(kind(message.clone()));
                 }
                 worker.watchdog.arm(self.limits.act_timeout);
                 let reply = (|| -> std::io::Result<Result<(), PolicyError>> {
@@ -451,6 +468,23 @@ impl Policy for SandboxedPolicy {
         }
         Ok(())
     }
+}
+
+/// A signal's name and what it usually means.
+fn signal_name(signal: i32) -> String {
+    let name = match signal {
+        libc::SIGSEGV => "SIGSEGV (segmentation fault)",
+        libc::SIGBUS => "SIGBUS (bus error)",
+        libc::SIGILL => "SIGILL (illegal instruction)",
+        libc::SIGFPE => "SIGFPE (arithmetic fault)",
+        libc::SIGABRT => "SIGABRT (aborted)",
+        libc::SIGSYS => "SIGSYS (a system call the sandbox forbids)",
+        libc::SIGKILL => "SIGKILL (killed: by the host's out-of-memory killer or an operator)",
+        libc::SIGTERM => "SIGTERM (terminated)",
+        libc::SIGPIPE => "SIGPIPE (broken pipe)",
+        other => return format!("signal {other}"),
+    };
+    name.to_string()
 }
 
 /// Cap one resource of this process.

@@ -182,3 +182,54 @@ async fn issue_36_a_model_of_empty_nodes_costs_the_server_nothing() {
         "peak RSS grew from {before_kib} to {after_kib} KiB"
     );
 }
+
+fn test_policy() -> Vec<u8> {
+    let path = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../tests/data/test_policy.onnx"
+    );
+    std::fs::read(path).expect("tests/data/test_policy.onnx")
+}
+
+#[test]
+fn issue_36_a_crashed_policy_worker_is_reported_as_a_crash() {
+    use unigait_policy::{Policy, PolicyError, PolicySpec, SandboxLimits, SandboxedPolicy};
+    let exe = std::path::Path::new(env!("CARGO_BIN_EXE_unigait-server"));
+    let spec = PolicySpec::default();
+    let history = vec![0.0; spec.input_width()];
+    let mut actions = vec![0.0; spec.num_actions];
+    for (signal, name) in [("SEGV", "SIGSEGV"), ("ILL", "SIGILL"), ("KILL", "SIGKILL")] {
+        let policy = SandboxedPolicy::spawn(exe, &test_policy(), spec, SandboxLimits::default())
+            .expect("the test policy loads");
+        policy
+            .act(&history, 1, &mut actions)
+            .expect("a first batch");
+        // Rust's runtime catches a SIGSEGV that is not a stack overflow once (it restores the
+        // default action and returns; a real fault then faults again and kills): signal until
+        // the worker is a zombie (its parent, the policy, has not reaped it yet).
+        let pid = policy.worker_pid();
+        let dead = (0..100).any(|_| {
+            let killed = Command::new("kill")
+                .args([format!("-{signal}"), pid.to_string()])
+                .status()
+                .expect("kill");
+            assert!(killed.success());
+            std::thread::sleep(Duration::from_millis(20));
+            let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
+            stat.rsplit(')')
+                .next()
+                .is_some_and(|rest| rest.trim_start().starts_with('Z'))
+        });
+        assert!(dead, "the worker outlived its signals");
+        for attempt in 0..2 {
+            // The first call finds the worker dead; the next gets the same error.
+            match policy.act(&history, 1, &mut actions) {
+                Err(PolicyError::Crashed(m)) => {
+                    assert!(m.contains(name) && m.contains("crashed"), "{m}");
+                    assert!(!m.contains("needed more"), "{m}");
+                }
+                other => panic!("{signal}, call {attempt}: {other:?}"),
+            }
+        }
+    }
+}
