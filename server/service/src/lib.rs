@@ -18,5 +18,6 @@ pub use error::ServiceError;
 pub use evaluate::EvaluateContext;
 pub use limits::{CostCaps, Limits};
 pub use server::{
-    MIN_TOKEN_LEN, ServeError, ServeOptions, check_token, is_loopback, serve, shutdown_signal,
+    MIN_TOKEN_LEN, ServeError, ServeOptions, TransportLimits, check_token, is_loopback, serve,
+    shutdown_signal,
 };

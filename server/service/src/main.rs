@@ -7,7 +7,8 @@ use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
 use unigait_policy::SandboxLimits;
 use unigait_server::{
-    Limits, ServeOptions, bench, check_token, is_loopback, probe, serve, shutdown_signal,
+    Limits, ServeOptions, TransportLimits, bench, check_token, is_loopback, probe, serve,
+    shutdown_signal,
 };
 use unigait_sim::task::TaskConfig;
 
@@ -83,6 +84,18 @@ struct ServeArgs {
     /// Seconds a shutdown waits for calls in flight.
     #[arg(long, default_value_t = 10)]
     drain_timeout: u64,
+    /// Connections open at once; beyond it new ones wait in the listen backlog.
+    #[arg(long, default_value_t = TransportLimits::default().max_connections)]
+    max_connections: usize,
+    /// HTTP/2 streams (calls) open at once on one connection.
+    #[arg(long, default_value_t = TransportLimits::default().max_concurrent_streams)]
+    max_concurrent_streams: u32,
+    /// Seconds a new connection has to send its first bytes and finish its TLS handshake.
+    #[arg(long, default_value_t = TransportLimits::default().handshake_timeout.as_secs())]
+    handshake_timeout: u64,
+    /// Seconds after which a connection is asked to reconnect (0: never).
+    #[arg(long, default_value_t = 0)]
+    max_connection_age: u64,
 }
 
 fn read(path: &PathBuf) -> Result<Vec<u8>> {
@@ -145,6 +158,14 @@ async fn run_serve(args: ServeArgs) -> Result<()> {
             ..SandboxLimits::default()
         },
         drain_timeout: std::time::Duration::from_secs(args.drain_timeout),
+        transport: TransportLimits {
+            max_connections: args.max_connections,
+            max_concurrent_streams: args.max_concurrent_streams,
+            handshake_timeout: std::time::Duration::from_secs(args.handshake_timeout.max(1)),
+            max_connection_age: (args.max_connection_age > 0)
+                .then(|| std::time::Duration::from_secs(args.max_connection_age)),
+            ..TransportLimits::default()
+        },
         ..ServeOptions::default()
     };
     let listener = tokio::net::TcpListener::bind(args.addr)

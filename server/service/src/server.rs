@@ -6,12 +6,16 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
 
+use std::pin::Pin;
+use std::task::Poll;
 use thiserror::Error;
+
+use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
 use tokio::net::{TcpListener, TcpStream};
-use tokio::sync::watch;
-use tokio_stream::StreamExt;
-use tokio_stream::wrappers::TcpListenerStream;
+use tokio::sync::{OwnedSemaphorePermit, Semaphore, mpsc, watch};
+use tokio_stream::wrappers::ReceiverStream;
 use tonic::service::interceptor::InterceptedService;
+use tonic::transport::server::{Connected, TcpConnectInfo};
 use tonic::transport::{Identity, Server, ServerTlsConfig};
 use tonic::{Request, Status};
 use tracing::{info, warn};
@@ -52,9 +56,51 @@ pub struct ServeOptions {
     /// HTTP/2 keepalive ping interval (a peer that does not answer within the timeout is
     /// dropped) and TCP keepalive idle time.
     pub keepalive: Duration,
+    /// Connection and HTTP/2 limits.
+    pub transport: TransportLimits,
     /// Test hook: sessions created with this seed panic when stepped.
     #[doc(hidden)]
     pub fault_injection_seed: Option<u64>,
+    /// Test hook: apply the rules for serving beyond loopback on a loopback listener.
+    #[doc(hidden)]
+    pub assume_remote: bool,
+}
+
+/// Limits on connections and HTTP/2 streams, so that idle or half-open connections and
+/// stream floods cannot exhaust the server's file descriptors, tasks or memory.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct TransportLimits {
+    /// Connections open at once (accepted, handshaking or serving); beyond it the server stops
+    /// accepting until one closes (new ones wait in the listen backlog). Default 512.
+    pub max_connections: usize,
+    /// HTTP/2 streams (calls) open at once on one connection. Default 128.
+    pub max_concurrent_streams: u32,
+    /// Time a new connection has to send its first bytes (the HTTP/2 preface, or a TLS
+    /// ClientHello) and to finish its TLS handshake. Default 10 s.
+    pub handshake_timeout: Duration,
+    /// Age after which a connection is asked to go away (GOAWAY; calls in flight finish, the
+    /// client reconnects); None: no limit (the default, as a training run's step stream may
+    /// last days).
+    pub max_connection_age: Option<Duration>,
+    /// Streams a client may reset before the server accepts them, and streams the server
+    /// may reset for a client's protocol errors, before the connection is closed (h2's and
+    /// hyper's defaults, which tonic does not pass on by itself). Default 20 and 1024.
+    pub max_pending_accept_reset_streams: usize,
+    /// See `max_pending_accept_reset_streams`.
+    pub max_local_error_reset_streams: usize,
+}
+
+impl Default for TransportLimits {
+    fn default() -> Self {
+        Self {
+            max_connections: 512,
+            max_concurrent_streams: 128,
+            handshake_timeout: Duration::from_secs(10),
+            max_connection_age: None,
+            max_pending_accept_reset_streams: 20,
+            max_local_error_reset_streams: 1024,
+        }
+    }
 }
 
 impl Default for ServeOptions {
@@ -69,7 +115,9 @@ impl Default for ServeOptions {
             sandbox: SandboxLimits::default(),
             drain_timeout: Duration::from_secs(10),
             keepalive: Duration::from_secs(30),
+            transport: TransportLimits::default(),
             fault_injection_seed: None,
+            assume_remote: false,
         }
     }
 }
@@ -142,15 +190,236 @@ impl tonic::service::Interceptor for TokenCheck {
     }
 }
 
+/// Requires the token on Health `Watch` only (a stream a client holds open); `Check` stays
+/// open for probes. The call's path comes from [`WithPath`].
+#[derive(Clone)]
+struct WatchTokenCheck(TokenCheck);
+
+impl tonic::service::Interceptor for WatchTokenCheck {
+    fn call(&mut self, request: Request<()>) -> Result<Request<()>, Status> {
+        match request.extensions().get::<CallPath>() {
+            Some(CallPath(path)) if !path.ends_with("/Check") => self.0.call(request),
+            Some(_) => Ok(request),
+            // Fail closed: every call comes through `WithPath`.
+            None => self.0.call(request),
+        }
+    }
+}
+
+/// The HTTP path of a call, for interceptors (which see no URI).
+#[derive(Clone)]
+struct CallPath(String);
+
+/// Puts the call's path into the request's extensions, as a [`CallPath`].
+#[derive(Clone)]
+struct WithPath<S>(S);
+
+impl<S, B> tonic::codegen::Service<tonic::codegen::http::Request<B>> for WithPath<S>
+where
+    S: tonic::codegen::Service<tonic::codegen::http::Request<B>>,
+{
+    type Response = S::Response;
+    type Error = S::Error;
+    type Future = S::Future;
+
+    fn poll_ready(
+        &mut self,
+        cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<Result<(), Self::Error>> {
+        self.0.poll_ready(cx)
+    }
+
+    fn call(&mut self, mut request: tonic::codegen::http::Request<B>) -> Self::Future {
+        let path = CallPath(request.uri().path().to_owned());
+        request.extensions_mut().insert(path);
+        self.0.call(request)
+    }
+}
+
+impl<S: tonic::server::NamedService> tonic::server::NamedService for WithPath<S> {
+    const NAME: &'static str = S::NAME;
+}
+
 /// Set TCP keepalive and no-delay on an accepted connection.
-fn tune(stream: TcpStream, keepalive: Duration) -> std::io::Result<TcpStream> {
+fn tune(stream: &TcpStream, keepalive: Duration) -> std::io::Result<()> {
     stream.set_nodelay(true)?;
     let ka = socket2::TcpKeepalive::new()
         .with_time(keepalive)
         .with_interval(Duration::from_secs(10))
         .with_retries(3);
-    socket2::SockRef::from(&stream).set_tcp_keepalive(&ka)?;
-    Ok(stream)
+    socket2::SockRef::from(stream).set_tcp_keepalive(&ka)?;
+    Ok(())
+}
+
+/// Bytes a new connection must send within the handshake timeout: the HTTP/2 client preface
+/// (`PRI * HTTP/2.0...`, 24 bytes); a TLS ClientHello is longer.
+const FIRST_BYTES: usize = 24;
+
+/// An accepted connection: holds one of the server's connection slots until it is dropped,
+/// and fails its reads if its first bytes do not come within the handshake timeout.
+struct Connection {
+    stream: TcpStream,
+    _slot: OwnedSemaphorePermit,
+    /// Until the first bytes have come: the deadline and the bytes read so far.
+    first_bytes: Option<(Pin<Box<tokio::time::Sleep>>, usize)>,
+}
+
+impl AsyncRead for Connection {
+    fn poll_read(
+        mut self: Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+        buf: &mut ReadBuf<'_>,
+    ) -> Poll<std::io::Result<()>> {
+        let this = &mut *self;
+        let before = buf.filled().len();
+        let polled = Pin::new(&mut this.stream).poll_read(cx, buf);
+        if let Some((deadline, read)) = &mut this.first_bytes {
+            *read += buf.filled().len() - before;
+            if *read >= FIRST_BYTES {
+                this.first_bytes = None;
+            } else if polled.is_pending() && deadline.as_mut().poll(cx).is_ready() {
+                return Poll::Ready(Err(std::io::Error::new(
+                    std::io::ErrorKind::TimedOut,
+                    "no handshake within the server's handshake timeout",
+                )));
+            }
+        }
+        polled
+    }
+}
+
+impl AsyncWrite for Connection {
+    fn poll_write(
+        mut self: Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+        buf: &[u8],
+    ) -> Poll<std::io::Result<usize>> {
+        Pin::new(&mut self.stream).poll_write(cx, buf)
+    }
+
+    fn poll_flush(
+        mut self: Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+    ) -> Poll<std::io::Result<()>> {
+        Pin::new(&mut self.stream).poll_flush(cx)
+    }
+
+    fn poll_shutdown(
+        mut self: Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+    ) -> Poll<std::io::Result<()>> {
+        Pin::new(&mut self.stream).poll_shutdown(cx)
+    }
+
+    fn poll_write_vectored(
+        mut self: Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+        bufs: &[std::io::IoSlice<'_>],
+    ) -> Poll<std::io::Result<usize>> {
+        Pin::new(&mut self.stream).poll_write_vectored(cx, bufs)
+    }
+
+    fn is_write_vectored(&self) -> bool {
+        self.stream.is_write_vectored()
+    }
+}
+
+impl Connected for Connection {
+    type ConnectInfo = TcpConnectInfo;
+
+    fn connect_info(&self) -> Self::ConnectInfo {
+        self.stream.connect_info()
+    }
+}
+
+/// Waits after a failed accept: 5 ms, doubling up to 1 s, back to the start after a success.
+#[derive(Debug, Default)]
+struct AcceptBackoff {
+    failures: u32,
+}
+
+impl AcceptBackoff {
+    /// The wait after one more failure.
+    fn next_wait(&mut self) -> Duration {
+        let wait = Duration::from_millis(5 << self.failures.min(8)).min(Duration::from_secs(1));
+        self.failures = self.failures.saturating_add(1);
+        wait
+    }
+
+    /// After a success.
+    fn reset(&mut self) {
+        self.failures = 0;
+    }
+}
+
+/// Accept connections from `listener` into `tx` while a connection slot is free, until
+/// `draining` turns true or the receiver goes. A failed accept (out of file descriptors, say)
+/// waits with [`AcceptBackoff`] instead of retrying at once.
+async fn accept_loop(
+    listener: TcpListener,
+    slots: Arc<Semaphore>,
+    tx: mpsc::Sender<std::io::Result<Connection>>,
+    transport: TransportLimits,
+    keepalive: Duration,
+    mut draining: watch::Receiver<bool>,
+) {
+    let mut backoff = AcceptBackoff::default();
+    let mut warned_full = false;
+    loop {
+        let slot = match slots.clone().try_acquire_owned() {
+            Ok(slot) => slot,
+            Err(_) => {
+                if !warned_full {
+                    warn!(
+                        max_connections = transport.max_connections,
+                        "connection limit reached; new connections wait until one closes"
+                    );
+                    warned_full = true;
+                }
+                tokio::select! {
+                    slot = slots.clone().acquire_owned() => match slot {
+                        Ok(slot) => slot,
+                        Err(_) => return,
+                    },
+                    _ = draining.wait_for(|d| *d) => return,
+                }
+            }
+        };
+        let accepted = tokio::select! {
+            a = listener.accept() => a,
+            _ = draining.wait_for(|d| *d) => return,
+        };
+        match accepted {
+            Ok((stream, _)) => {
+                backoff.reset();
+                if slots.available_permits() > 0 {
+                    warned_full = false;
+                }
+                if let Err(e) = tune(&stream, keepalive) {
+                    // The peer may already be gone; the connection fails on its own then.
+                    tracing::debug!(error = %e, "cannot tune an accepted connection");
+                }
+                let deadline = Box::pin(tokio::time::sleep(transport.handshake_timeout));
+                let connection = Connection {
+                    stream,
+                    _slot: slot,
+                    first_bytes: Some((deadline, 0)),
+                };
+                if tx.send(Ok(connection)).await.is_err() {
+                    return;
+                }
+            }
+            Err(e) => {
+                let wait = backoff.next_wait();
+                warn!(error = %e, wait_ms = wait.as_millis() as u64, "accept failed; waiting before the next");
+                drop(slot);
+                tokio::select! {
+                    () = tokio::time::sleep(wait) => {}
+                    _ = draining.wait_for(|d| *d) => return,
+                }
+            }
+        }
+    }
 }
 
 /// Serve on `listener` until `shutdown` completes, then drain: health turns NOT_SERVING, new
@@ -165,7 +434,7 @@ pub async fn serve(
     if let Some(token) = &options.token {
         check_token(token)?;
     }
-    let remote = !is_loopback(&listener.local_addr()?);
+    let remote = options.assume_remote || !is_loopback(&listener.local_addr()?);
     let pool = worker_pool(options.threads)?;
     let limits = options.limits;
     let evaluation = Arc::new(EvaluateContext {
@@ -214,13 +483,17 @@ pub async fn serve(
     let reflection_v1alpha = reflection(tonic_reflection::server::Builder::configure())
         .build_v1alpha()
         .map_err(|e| ServeError::Reflection(e.to_string()))?;
-    // Beyond loopback, reflection (which describes the service) needs the token too; health
-    // stays open for probes.
+    // Beyond loopback, reflection (which describes the service) and health's Watch (a stream
+    // held open) need the token too; health's Check stays open for probes.
     let reflection_token = TokenCheck(if remote {
         options.token.as_deref().map(Arc::from)
     } else {
         None
     });
+    let health = WithPath(InterceptedService::new(
+        health,
+        WatchTokenCheck(reflection_token.clone()),
+    ));
 
     let reaper = {
         let sessions = sessions.clone();
@@ -236,16 +509,35 @@ pub async fn serve(
         })
     };
 
+    let transport = options.transport;
     let mut builder = Server::builder()
         .http2_keepalive_interval(Some(options.keepalive))
-        .http2_keepalive_timeout(Some(Duration::from_secs(20)));
-    if let Some((cert, key)) = &options.tls {
-        builder =
-            builder.tls_config(ServerTlsConfig::new().identity(Identity::from_pem(cert, key)))?;
+        .http2_keepalive_timeout(Some(Duration::from_secs(20)))
+        .max_concurrent_streams(Some(transport.max_concurrent_streams))
+        .http2_max_pending_accept_reset_streams(Some(transport.max_pending_accept_reset_streams))
+        .http2_max_local_error_reset_streams(Some(transport.max_local_error_reset_streams));
+    if let Some(age) = transport.max_connection_age {
+        builder = builder
+            .max_connection_age(age)
+            .max_connection_age_grace(options.drain_timeout);
     }
-    let keepalive = options.keepalive;
-    let incoming =
-        TcpListenerStream::new(listener).map(move |s| s.and_then(|s| tune(s, keepalive)));
+    if let Some((cert, key)) = &options.tls {
+        builder = builder.tls_config(
+            ServerTlsConfig::new()
+                .identity(Identity::from_pem(cert, key))
+                .timeout(transport.handshake_timeout),
+        )?;
+    }
+    let (conn_tx, conn_rx) = mpsc::channel(1);
+    let acceptor = tokio::spawn(accept_loop(
+        listener,
+        Arc::new(Semaphore::new(transport.max_connections.max(1))),
+        conn_tx,
+        transport,
+        options.keepalive,
+        drain_rx.clone(),
+    ));
+    let incoming = ReceiverStream::new(conn_rx);
     let signal = {
         let health_reporter = health_reporter.clone();
         async move {
@@ -285,6 +577,7 @@ pub async fn serve(
         }
     };
     reaper.abort();
+    acceptor.abort();
     let closed = sessions.close_all();
     info!(closed_sessions = closed, "server stopped");
     Ok(result?)

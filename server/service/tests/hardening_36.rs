@@ -233,3 +233,272 @@ fn issue_36_a_crashed_policy_worker_is_reported_as_a_crash() {
         }
     }
 }
+
+/// The soft limit on open files of this process (from /proc/self/limits).
+fn open_files_limit() -> usize {
+    std::fs::read_to_string("/proc/self/limits")
+        .ok()
+        .and_then(|l| {
+            l.lines()
+                .find(|l| l.starts_with("Max open files"))
+                .and_then(|l| l.split_whitespace().nth(3).and_then(|v| v.parse().ok()))
+        })
+        .unwrap_or(1024)
+}
+
+/// Whether the server closed `stream` (EOF or a reset) before `deadline` (a hang guard).
+fn closed_by_server(stream: &mut std::net::TcpStream, deadline: std::time::Instant) -> bool {
+    use std::io::Read;
+    let mut buf = [0u8; 256];
+    loop {
+        let left = deadline.saturating_duration_since(std::time::Instant::now());
+        stream
+            .set_read_timeout(Some(left.max(Duration::from_millis(1))))
+            .expect("timeout");
+        match stream.read(&mut buf) {
+            Ok(0) => return true,
+            // TLS alerts or HTTP/2 frames the server sends before it closes.
+            Ok(_) => continue,
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                ) =>
+            {
+                return false;
+            }
+            Err(_) => return true,
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn issue_36_idle_connections_are_dropped_and_a_client_still_gets_service() {
+    // The server holds up to 512 connections and gives each 1 s to start talking.
+    let server = SpawnedServer::start(
+        &[
+            "--threads",
+            "1",
+            "--max-connections",
+            "512",
+            "--handshake-timeout",
+            "1",
+        ],
+        4096,
+    );
+    let addr = server.addr;
+    let n = 1500.min(open_files_limit().saturating_sub(300));
+    let idle = tokio::task::spawn_blocking(move || {
+        (0..n)
+            .map(|_| {
+                std::net::TcpStream::connect_timeout(&addr, Duration::from_secs(10))
+                    .expect("connect (the listen backlog holds what the server has not accepted)")
+            })
+            .collect::<Vec<_>>()
+    })
+    .await
+    .expect("join");
+    // A well-behaved client, queued behind them, is served once idle ones are dropped.
+    let mut c = server.client().await;
+    let info = c
+        .get_server_info(v1::GetServerInfoRequest {})
+        .await
+        .expect("served")
+        .into_inner();
+    assert_eq!(info.active_sessions, 0);
+    let deadline = std::time::Instant::now() + Duration::from_secs(30);
+    let closed = tokio::task::spawn_blocking(move || {
+        idle.into_iter()
+            .filter_map(|mut s| closed_by_server(&mut s, deadline).then_some(()))
+            .count()
+    })
+    .await
+    .expect("join");
+    assert_eq!(closed, n, "every idle connection is closed by the server");
+    c.get_server_info(v1::GetServerInfoRequest {})
+        .await
+        .expect("still served");
+}
+
+/// A self-signed certificate for `localhost` (the openssl command), written to a temp dir.
+fn self_signed_localhost() -> (std::path::PathBuf, std::path::PathBuf) {
+    let dir = std::env::temp_dir().join(format!("unigait-36-tls-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    let (cert, key) = (dir.join("cert.pem"), dir.join("key.pem"));
+    let status = Command::new("openssl")
+        .args([
+            "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "1",
+        ])
+        .args(["-subj", "/CN=localhost"])
+        .args(["-addext", "subjectAltName=DNS:localhost"])
+        .arg("-keyout")
+        .arg(&key)
+        .arg("-out")
+        .arg(&cert)
+        .stderr(Stdio::null())
+        .status()
+        .expect("openssl runs");
+    assert!(status.success(), "openssl could not make a certificate");
+    (cert, key)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn issue_36_half_open_tls_handshakes_time_out() {
+    use std::io::Write;
+    let (cert, key) = self_signed_localhost();
+    let (cert, key) = (cert.display().to_string(), key.display().to_string());
+    let server = SpawnedServer::start(
+        &[
+            "--threads",
+            "1",
+            "--tls-cert",
+            &cert,
+            "--tls-key",
+            &key,
+            "--handshake-timeout",
+            "1",
+        ],
+        4096,
+    );
+    let addr = server.addr;
+    let deadline = std::time::Instant::now() + Duration::from_secs(20);
+    let closed = tokio::task::spawn_blocking(move || {
+        let mut streams: Vec<std::net::TcpStream> = (0..50)
+            .map(|_| std::net::TcpStream::connect(addr).expect("connect"))
+            .collect();
+        // Half the connections send nothing, half the start of a ClientHello (a handshake
+        // record announcing 512 bytes, then 40 of them) and stall.
+        for s in streams.iter_mut().skip(25) {
+            let mut hello = vec![0x16, 0x03, 0x01, 0x02, 0x00, 0x01, 0x00, 0x01, 0xfc];
+            hello.extend([0u8; 31]);
+            s.write_all(&hello).expect("write");
+        }
+        streams
+            .iter_mut()
+            .map(|s| closed_by_server(s, deadline))
+            .filter(|&closed| closed)
+            .count()
+    })
+    .await
+    .expect("join");
+    assert_eq!(
+        closed, 50,
+        "every stalled handshake is closed by the server"
+    );
+}
+
+/// A server in this process, on a loopback port; stopped when `stop` is sent or dropped.
+struct InProcess {
+    addr: SocketAddr,
+    _stop: tokio::sync::oneshot::Sender<()>,
+}
+
+async fn in_process(options: unigait_server::ServeOptions) -> InProcess {
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
+        .await
+        .expect("bind");
+    let addr = listener.local_addr().expect("addr");
+    let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
+    tokio::spawn(unigait_server::serve(listener, options, async {
+        let _ = stopped.await;
+    }));
+    InProcess { addr, _stop: stop }
+}
+
+async fn channel(addr: SocketAddr) -> Channel {
+    Channel::from_shared(format!("http://{addr}"))
+        .expect("uri")
+        .connect()
+        .await
+        .expect("connect")
+}
+
+const TOKEN: &str = "0123456789abcdef-test-token";
+
+fn with_token<T>(message: T) -> tonic::Request<T> {
+    let mut r = tonic::Request::new(message);
+    r.metadata_mut().insert(
+        "authorization",
+        format!("Bearer {TOKEN}").parse().expect("header"),
+    );
+    r
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn issue_36_health_watch_needs_the_token_beyond_loopback() {
+    use tonic_health::pb::HealthCheckRequest;
+    use tonic_health::pb::health_client::HealthClient;
+    let server = in_process(unigait_server::ServeOptions {
+        threads: 1,
+        token: Some(TOKEN.into()),
+        assume_remote: true,
+        ..Default::default()
+    })
+    .await;
+    let mut health = HealthClient::new(channel(server.addr).await);
+    let check = HealthCheckRequest {
+        service: String::new(),
+    };
+    // Check stays open for probes; Watch (a stream held open) needs the token.
+    health.check(check.clone()).await.expect("check");
+    let refused = health.watch(check.clone()).await;
+    assert_eq!(refused.expect_err("no token").code(), Code::Unauthenticated);
+    let mut watch = health
+        .watch(with_token(check))
+        .await
+        .expect("watch with the token")
+        .into_inner();
+    let first = watch.message().await.expect("status").expect("a status");
+    assert_eq!(
+        first.status,
+        tonic_health::pb::health_check_response::ServingStatus::Serving as i32
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn issue_36_streams_per_connection_are_limited() {
+    use tonic_health::pb::HealthCheckRequest;
+    use tonic_health::pb::health_client::HealthClient;
+    let server = in_process(unigait_server::ServeOptions {
+        threads: 1,
+        transport: unigait_server::TransportLimits {
+            max_concurrent_streams: 3,
+            ..Default::default()
+        },
+        ..Default::default()
+    })
+    .await;
+    let channel = channel(server.addr).await;
+    let mut health = HealthClient::new(channel.clone());
+    let check = HealthCheckRequest {
+        service: String::new(),
+    };
+    // Three Watch streams stay open on the connection: the server's limit.
+    let mut watches = Vec::new();
+    for _ in 0..3 {
+        let mut w = health
+            .watch(check.clone())
+            .await
+            .expect("watch")
+            .into_inner();
+        w.message().await.expect("status").expect("a status");
+        watches.push(w);
+    }
+    // A fourth call on the same connection waits for a stream to close (the client holds it
+    // back, as the server's SETTINGS say), so its deadline passes.
+    let mut c = SimulatorClient::new(channel.clone());
+    let mut r = tonic::Request::new(v1::GetServerInfoRequest {});
+    r.set_timeout(Duration::from_millis(500));
+    let waited = c.get_server_info(r).await;
+    // The client's own deadline ends it: CANCELLED (tonic's "Timeout expired") or
+    // DEADLINE_EXCEEDED.
+    let code = waited.expect_err("held back").code();
+    assert!(
+        matches!(code, Code::DeadlineExceeded | Code::Cancelled),
+        "{code:?}"
+    );
+    drop(watches.pop());
+    c.get_server_info(v1::GetServerInfoRequest {})
+        .await
+        .expect("served once a stream closed");
+}
