@@ -29,6 +29,9 @@ pub struct Limits {
     pub max_evaluation_reply_bytes: usize,
     /// Bytes of one client ONNX policy.
     pub max_policy_bytes: usize,
+    /// Calls on one session in flight at once (running, or waiting for the session); more are
+    /// refused, so one client's flood waits on no one else's blocking threads.
+    pub max_calls_per_session: usize,
 }
 
 /// Caps on the settings that set the cost of one step, so that one Step cannot hold the shared
@@ -81,6 +84,7 @@ impl Default for Limits {
             max_evaluation_s: 900,
             max_evaluation_reply_bytes: 32 << 20,
             max_policy_bytes: 16 << 20,
+            max_calls_per_session: 4,
         }
     }
 }

@@ -78,6 +78,9 @@ struct ServeArgs {
     /// Seconds one evaluation may run.
     #[arg(long, default_value_t = Limits::default().max_evaluation_s)]
     max_evaluation_seconds: u64,
+    /// Calls on one session in flight at once; more are refused (RESOURCE_EXHAUSTED).
+    #[arg(long, default_value_t = Limits::default().max_calls_per_session)]
+    max_calls_per_session: usize,
     /// Address space of a policy worker (MiB).
     #[arg(long, default_value_t = SandboxLimits::default().memory_bytes >> 20)]
     policy_memory_mib: u64,
@@ -145,6 +148,7 @@ async fn run_serve(args: ServeArgs) -> Result<()> {
             stream_idle_timeout_s: args.stream_idle_timeout,
             max_concurrent_evaluations: args.max_evaluations,
             max_evaluation_s: args.max_evaluation_seconds,
+            max_calls_per_session: args.max_calls_per_session.max(1),
             ..Limits::default()
         },
         threads: args.threads,

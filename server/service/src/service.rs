@@ -66,7 +66,16 @@ async fn on_session<T: Send + 'static>(
     work: impl FnOnce(&Session) -> Result<T, ServiceError> + Send + 'static,
 ) -> Result<T, Status> {
     let id = session.id.clone();
-    let joined = tokio::task::spawn_blocking(move || work(&session)).await;
+    // Counted before it waits for the session's lock (or a blocking thread), so one client's
+    // flood of calls on one session is refused rather than queued.
+    let slot = session
+        .begin_call(sessions.limits().max_calls_per_session)
+        .map_err(status)?;
+    let joined = tokio::task::spawn_blocking(move || {
+        let _slot = slot;
+        work(&session)
+    })
+    .await;
     let broken = match joined {
         Ok(Ok(value)) => return Ok(value),
         Ok(Err(e @ ServiceError::Broken(_))) => e,

@@ -1,7 +1,7 @@
 //! One client's batch of envs, and the registry of all sessions.
 
 use std::collections::HashMap;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
@@ -39,9 +39,20 @@ pub struct Session {
     /// Woken when the session is closed (ends its step stream).
     close_notify: Notify,
     steps: AtomicU64,
+    /// Calls on this session in flight (running or waiting for its lock).
+    in_flight: AtomicUsize,
     last_used: Mutex<Instant>,
     /// Test hook: panic while stepping (see `ServeOptions::fault_injection_seed`).
     panic_on_step: bool,
+}
+
+/// A call on a session in flight, counted until dropped.
+pub struct CallSlot(Arc<Session>);
+
+impl Drop for CallSlot {
+    fn drop(&mut self) {
+        self.0.in_flight.fetch_sub(1, Ordering::AcqRel);
+    }
 }
 
 /// Marks a session as having an open step stream until dropped.
@@ -77,6 +88,18 @@ impl Session {
             return Err(closed_error(&self.id));
         }
         Ok(guard)
+    }
+
+    /// Count one more call in flight on this session, or refuse it when `max` are.
+    pub fn begin_call(self: &Arc<Self>, max: usize) -> Result<CallSlot, ServiceError> {
+        if self.in_flight.fetch_add(1, Ordering::AcqRel) >= max {
+            self.in_flight.fetch_sub(1, Ordering::AcqRel);
+            return Err(ServiceError::LimitExceeded(format!(
+                "session `{}` has {max} calls in flight already; wait for their replies (--max-calls-per-session)",
+                self.id
+            )));
+        }
+        Ok(CallSlot(self.clone()))
     }
 
     /// Whether the session was closed.
@@ -376,6 +399,7 @@ impl Sessions {
             closed: AtomicBool::new(false),
             close_notify: Notify::new(),
             steps: AtomicU64::new(0),
+            in_flight: AtomicUsize::new(0),
             last_used: Mutex::new(Instant::now()),
             panic_on_step: self.fault_injection_seed == Some(config.seed),
         });
@@ -435,5 +459,41 @@ impl Sessions {
         idle.into_iter()
             .filter(|id| self.close(id).is_ok())
             .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sessions(max_total_envs: usize) -> Sessions {
+        let limits = Limits {
+            max_total_envs,
+            ..Limits::default()
+        };
+        let pool = unigait_sim::env::worker_pool(1).expect("pool");
+        Sessions::new(limits, TaskConfig::embedded_default(), pool, None)
+    }
+
+    fn config(num_envs: u32) -> v1::SessionConfig {
+        v1::SessionConfig {
+            num_envs,
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn issue_36_calls_in_flight_per_session_are_bounded() {
+        let sessions = sessions(8);
+        let (session, _) = sessions.create(&config(1)).expect("create");
+        let slots: Vec<CallSlot> = (0..3)
+            .map(|_| session.begin_call(3).expect("within the bound"))
+            .collect();
+        assert!(matches!(
+            session.begin_call(3),
+            Err(ServiceError::LimitExceeded(_))
+        ));
+        drop(slots);
+        session.begin_call(3).expect("free again");
     }
 }

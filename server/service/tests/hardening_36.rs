@@ -502,3 +502,46 @@ async fn issue_36_streams_per_connection_are_limited() {
         .await
         .expect("served once a stream closed");
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn issue_36_a_flood_of_calls_on_one_session_is_refused_and_others_step() {
+    let server = in_process(unigait_server::ServeOptions {
+        threads: 1,
+        ..Default::default()
+    })
+    .await;
+    let channel = channel(server.addr).await;
+    let mut c = SimulatorClient::new(channel.clone());
+    let big = create(&mut c, 512, 1).await;
+    let small = create(&mut c, 1, 2).await;
+    let flood: Vec<_> = (0..100)
+        .map(|_| {
+            let mut c = c.clone();
+            let big = big.clone();
+            tokio::spawn(async move {
+                c.reset(v1::ResetRequest {
+                    session_id: big,
+                    mask: None,
+                })
+                .await
+            })
+        })
+        .collect();
+    c.step(step_request(&small, 1))
+        .await
+        .expect("the other session steps");
+    let (mut ok, mut refused) = (0, 0);
+    for call in flood {
+        match call.await.expect("join") {
+            Ok(_) => ok += 1,
+            Err(s) => {
+                assert_eq!(s.code(), Code::ResourceExhausted, "{s:?}");
+                assert!(s.message().contains("in flight"), "{}", s.message());
+                refused += 1;
+            }
+        }
+    }
+    eprintln!("flood: {ok} served, {refused} refused");
+    assert!(ok >= 1 && refused >= 1, "{ok} served, {refused} refused");
+    assert_eq!(ok + refused, 100);
+}
