@@ -127,6 +127,19 @@ fn draining_status() -> Status {
     Status::unavailable("the server is shutting down; reconnect to another server or later")
 }
 
+/// Send `item` on the stream unless the client has not read for `timeout` (its replies fill
+/// the HTTP/2 window, then this channel); false when it is not sent.
+async fn send_within(
+    tx: &mpsc::Sender<Result<v1::StepResult, Status>>,
+    item: Result<v1::StepResult, Status>,
+    timeout: Duration,
+) -> bool {
+    matches!(
+        tokio::time::timeout(timeout, tx.send(item)).await,
+        Ok(Ok(()))
+    )
+}
+
 /// Serve one step stream: the first request names the session; each request gets one reply.
 /// A failed step, a bad or oversized message, a close or a server shutdown end the stream with
 /// that status. The session outlives its stream (a client whose connection broke can open a
@@ -141,19 +154,18 @@ async fn run_step_stream(
     let first = match next_request(&mut inbound, None, &mut draining, idle).await {
         Next::Request(Some(Ok(first))) => first,
         Next::Request(Some(Err(status))) => {
-            let _ = tx.send(Err(status)).await;
+            send_within(&tx, Err(status), idle).await;
             return;
         }
         Next::Draining => {
-            let _ = tx.send(Err(draining_status())).await;
+            send_within(&tx, Err(draining_status()), idle).await;
             return;
         }
         Next::Idle => {
-            let _ = tx
-                .send(Err(Status::deadline_exceeded(
-                    "no request on the step stream within the server's stream idle timeout",
-                )))
-                .await;
+            let end = Status::deadline_exceeded(
+                "no request on the step stream within the server's stream idle timeout",
+            );
+            send_within(&tx, Err(end), idle).await;
             return;
         }
         Next::Request(None) | Next::Closed => return,
@@ -164,7 +176,7 @@ async fn run_step_stream(
     {
         Ok(found) => found,
         Err(e) => {
-            let _ = tx.send(Err(status(e))).await;
+            send_within(&tx, Err(status(e)), idle).await;
             return;
         }
     };
@@ -176,15 +188,14 @@ async fn run_step_stream(
                 "this stream belongs to session `{}`, not `{}`",
                 session.id, request.session_id
             );
-            let _ = tx
-                .send(Err(Status::invalid_argument(cut_message(&message))))
-                .await;
+            let end = Status::invalid_argument(cut_message(&message));
+            send_within(&tx, Err(end), idle).await;
             return;
         }
         let result = on_session(&sessions, session.clone(), move |s| s.step(&request)).await;
         let failed = result.is_err();
-        if tx.send(result).await.is_err() {
-            info!(session = %session.id, "client stopped reading its step stream; the session stays until closed or idle");
+        if !send_within(&tx, result, idle).await {
+            info!(session = %session.id, "client stopped reading its step stream (gone, or no reply read within the stream idle timeout); the stream ends, the session stays until closed or idle");
             return;
         }
         if failed {
@@ -194,30 +205,25 @@ async fn run_step_stream(
             Next::Request(Some(Ok(r))) => r,
             Next::Request(Some(Err(status))) => {
                 warn!(session = %session.id, %status, "step stream broken; the session stays until closed or idle");
-                let _ = tx.send(Err(status)).await;
+                send_within(&tx, Err(status), idle).await;
                 return;
             }
             Next::Request(None) => return,
             Next::Closed => {
-                let _ = tx
-                    .send(Err(Status::not_found(format!(
-                        "session `{}` was closed",
-                        session.id
-                    ))))
-                    .await;
+                let end = Status::not_found(format!("session `{}` was closed", session.id));
+                send_within(&tx, Err(end), idle).await;
                 return;
             }
             Next::Draining => {
-                let _ = tx.send(Err(draining_status())).await;
+                send_within(&tx, Err(draining_status()), idle).await;
                 return;
             }
             Next::Idle => {
                 warn!(session = %session.id, "step stream idle; ended (the session stays until closed or idle)");
-                let _ = tx
-                    .send(Err(Status::deadline_exceeded(
-                        "no request on the step stream within the server's stream idle timeout; open a new stream to go on",
-                    )))
-                    .await;
+                let end = Status::deadline_exceeded(
+                    "no request on the step stream within the server's stream idle timeout; open a new stream to go on",
+                );
+                send_within(&tx, Err(end), idle).await;
                 return;
             }
         };

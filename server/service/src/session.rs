@@ -22,6 +22,58 @@ struct Batch {
     /// With autoreset disabled: envs whose episode ended and that were not reset since. Their
     /// end is reported once; later steps report neither a termination nor a reward for them.
     ended: Vec<u8>,
+    /// The envs' share of `--max-total-envs`, given back when the batch (its memory) goes.
+    _budget: EnvBudget,
+}
+
+/// Envs counted against the server's total until dropped.
+struct EnvBudget {
+    envs: usize,
+    in_use: Arc<Mutex<usize>>,
+}
+
+impl Drop for EnvBudget {
+    fn drop(&mut self) {
+        let mut in_use = self.in_use.lock().unwrap_or_else(|e| e.into_inner());
+        *in_use = in_use.saturating_sub(self.envs);
+    }
+}
+
+/// The session's batch, locked; frees the batch when released after the session was closed
+/// (a close that came while this call held the lock could not).
+struct BatchGuard<'a> {
+    guard: MutexGuard<'a, Option<Batch>>,
+    session: &'a Session,
+}
+
+impl std::ops::Deref for BatchGuard<'_> {
+    type Target = Option<Batch>;
+    fn deref(&self) -> &Option<Batch> {
+        &self.guard
+    }
+}
+
+impl std::ops::DerefMut for BatchGuard<'_> {
+    fn deref_mut(&mut self) -> &mut Option<Batch> {
+        &mut self.guard
+    }
+}
+
+impl Drop for BatchGuard<'_> {
+    fn drop(&mut self) {
+        if self.session.is_closed() {
+            self.guard.take();
+        }
+    }
+}
+
+/// A call on a session in flight, counted until dropped.
+pub struct CallSlot(Arc<Session>);
+
+impl Drop for CallSlot {
+    fn drop(&mut self) {
+        self.0.in_flight.fetch_sub(1, Ordering::AcqRel);
+    }
 }
 
 /// A session: its envs behind a lock (stepped on the shared worker pool), its spec and bookkeeping.
@@ -46,15 +98,6 @@ pub struct Session {
     panic_on_step: bool,
 }
 
-/// A call on a session in flight, counted until dropped.
-pub struct CallSlot(Arc<Session>);
-
-impl Drop for CallSlot {
-    fn drop(&mut self) {
-        self.0.in_flight.fetch_sub(1, Ordering::AcqRel);
-    }
-}
-
 /// Marks a session as having an open step stream until dropped.
 pub struct StreamGuard(Arc<Session>);
 
@@ -77,14 +120,18 @@ impl Session {
     }
 
     /// The session's batch; a lock poisoned by a panic while stepping breaks the session.
-    fn lock(&self) -> Result<MutexGuard<'_, Option<Batch>>, ServiceError> {
+    fn lock(&self) -> Result<BatchGuard<'_>, ServiceError> {
         self.touch();
-        let mut guard = self
+        let guard = self
             .batch
             .lock()
             .map_err(|_| ServiceError::Broken(self.id.clone()))?;
+        let guard = BatchGuard {
+            guard,
+            session: self,
+        };
         if self.is_closed() {
-            guard.take();
+            // Dropping the guard frees the batch.
             return Err(closed_error(&self.id));
         }
         Ok(guard)
@@ -229,16 +276,15 @@ impl Session {
 #[derive(Default)]
 struct Registry {
     map: HashMap<String, Arc<Session>>,
-    /// Envs of open sessions and of sessions being built.
-    envs: usize,
     /// Sessions being built.
     pending: usize,
 }
 
-/// A slot and envs reserved for a session being built; given back unless committed.
+/// A slot and envs reserved for a session being built; given back unless committed (the
+/// envs go with the budget, when it is dropped).
 struct Reservation<'a> {
     sessions: &'a Sessions,
-    envs: usize,
+    budget: Option<EnvBudget>,
     committed: bool,
 }
 
@@ -249,7 +295,6 @@ impl Drop for Reservation<'_> {
         }
         if let Ok(mut r) = self.sessions.registry() {
             r.pending = r.pending.saturating_sub(1);
-            r.envs = r.envs.saturating_sub(self.envs);
         }
     }
 }
@@ -257,6 +302,9 @@ impl Drop for Reservation<'_> {
 /// All sessions of a server.
 pub struct Sessions {
     registry: Mutex<Registry>,
+    /// Envs whose memory is held: of open sessions, of sessions being built, and of closed
+    /// sessions whose envs a call in flight still holds. Locked after `registry`.
+    envs: Arc<Mutex<usize>>,
     limits: Limits,
     model: Arc<RobotModel>,
     base_config: TaskConfig,
@@ -274,6 +322,7 @@ impl Sessions {
     ) -> Self {
         Self {
             registry: Mutex::new(Registry::default()),
+            envs: Arc::new(Mutex::new(0)),
             limits,
             model: Arc::new(RobotModel::go2()),
             base_config,
@@ -303,9 +352,10 @@ impl Sessions {
         self.registry().map(|r| r.map.len()).unwrap_or(0)
     }
 
-    /// Envs of open sessions (and of sessions being built).
+    /// Envs whose memory is held (open sessions, sessions being built, closed sessions whose
+    /// envs a call in flight still holds).
     pub fn envs_in_use(&self) -> usize {
-        self.registry().map(|r| r.envs).unwrap_or(0)
+        *self.envs.lock().unwrap_or_else(|e| e.into_inner())
     }
 
     /// Reserve a session slot and `n` envs before building them.
@@ -317,18 +367,22 @@ impl Sessions {
                 self.limits.max_sessions
             )));
         }
-        if r.envs + n > self.limits.max_total_envs {
+        let mut envs = self.envs.lock().unwrap_or_else(|e| e.into_inner());
+        if *envs + n > self.limits.max_total_envs {
             return Err(ServiceError::LimitExceeded(format!(
                 "{n} envs requested but only {} of the server's {} are free (--max-total-envs)",
-                self.limits.max_total_envs.saturating_sub(r.envs),
+                self.limits.max_total_envs.saturating_sub(*envs),
                 self.limits.max_total_envs
             )));
         }
+        *envs += n;
         r.pending += 1;
-        r.envs += n;
         Ok(Reservation {
             sessions: self,
-            envs: n,
+            budget: Some(EnvBudget {
+                envs: n,
+                in_use: self.envs.clone(),
+            }),
             committed: false,
         })
     }
@@ -392,6 +446,9 @@ impl Sessions {
             batch: Mutex::new(Some(Batch {
                 env,
                 ended: vec![0; n],
+                _budget: reservation.budget.take().ok_or_else(|| {
+                    ServiceError::Internal("a reservation without its envs".into())
+                })?,
             })),
             autoreset: autoreset == AutoresetMode::SameStep,
             reward_terms: config.reward_terms,
@@ -420,17 +477,14 @@ impl Sessions {
     }
 
     /// Close the session `id`: it leaves the table, its stream (if any) ends and its envs are
-    /// freed.
+    /// freed (by the call in flight that holds them, if any, when it ends; they count against
+    /// `--max-total-envs` until then).
     pub fn close(&self, id: &str) -> Result<(), ServiceError> {
-        let session = {
-            let mut r = self.registry()?;
-            let session = r
-                .map
-                .remove(id)
-                .ok_or_else(|| ServiceError::UnknownSession(id.into()))?;
-            r.envs = r.envs.saturating_sub(session.spec.num_envs as usize);
-            session
-        };
+        let session = self
+            .registry()?
+            .map
+            .remove(id)
+            .ok_or_else(|| ServiceError::UnknownSession(id.into()))?;
         session.shut();
         Ok(())
     }
@@ -444,14 +498,27 @@ impl Sessions {
         ids.iter().filter(|id| self.close(id).is_ok()).count()
     }
 
-    /// Close sessions unused for longer than the idle timeout; returns their ids.
+    /// Close sessions unused for longer than the idle timeout; returns their ids. A session
+    /// with a stream counts as unused once the stream has done nothing for longer than a live
+    /// stream can (it waits for a request, or to send a reply, up to the stream idle timeout
+    /// each): its stream is stuck.
     pub fn reap_idle(&self) -> Vec<String> {
         let timeout = Duration::from_secs(self.limits.idle_timeout_s);
+        let stuck = timeout.max(Duration::from_secs(
+            2 * self.limits.stream_idle_timeout_s.max(1),
+        ));
         let idle: Vec<String> = match self.registry() {
             Ok(r) => r
                 .map
                 .iter()
-                .filter(|(_, s)| !s.streaming.load(Ordering::Acquire) && s.idle_for() > timeout)
+                .filter(|(_, s)| {
+                    let limit = if s.streaming.load(Ordering::Acquire) {
+                        stuck
+                    } else {
+                        timeout
+                    };
+                    s.idle_for() > limit
+                })
                 .map(|(id, _)| id.clone())
                 .collect(),
             Err(_) => return vec![],
@@ -480,6 +547,26 @@ mod tests {
             num_envs,
             ..Default::default()
         }
+    }
+
+    #[test]
+    fn issue_36_a_close_during_a_call_releases_the_envs_with_their_memory() {
+        let sessions = sessions(6);
+        let (session, _) = sessions.create(&config(4)).expect("create");
+        // A call in flight holds the batch (as a step does) when the close lands.
+        let held = session.lock().expect("lock");
+        sessions.close(&session.id).expect("close");
+        assert_eq!(sessions.len(), 0, "the slot is free at once");
+        assert_eq!(sessions.envs_in_use(), 4, "the envs are still in memory");
+        let refused = sessions.create(&config(4));
+        assert!(
+            matches!(refused, Err(ServiceError::LimitExceeded(_))),
+            "4 + 4 > 6 while the first batch lives"
+        );
+        drop(held);
+        assert_eq!(sessions.envs_in_use(), 0, "the call's end frees the batch");
+        assert!(session.batch.lock().expect("lock").is_none());
+        sessions.create(&config(4)).expect("now it fits");
     }
 
     #[test]

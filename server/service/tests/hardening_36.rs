@@ -545,3 +545,85 @@ async fn issue_36_a_flood_of_calls_on_one_session_is_refused_and_others_step() {
     assert!(ok >= 1 && refused >= 1, "{ok} served, {refused} refused");
     assert_eq!(ok + refused, 100);
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn issue_36_a_stream_whose_client_does_not_read_ends() {
+    let server = in_process(unigait_server::ServeOptions {
+        threads: 1,
+        limits: unigait_server::Limits {
+            stream_idle_timeout_s: 1,
+            ..Default::default()
+        },
+        ..Default::default()
+    })
+    .await;
+    // A small HTTP/2 window, so a few unread replies fill it.
+    let channel = Channel::from_shared(format!("http://{}", server.addr))
+        .expect("uri")
+        .initial_stream_window_size(Some(65_535))
+        .initial_connection_window_size(Some(65_535))
+        .connect()
+        .await
+        .expect("connect");
+    let mut c = SimulatorClient::new(channel);
+    // Unary calls go on a connection of their own: the stream's unread replies fill the first
+    // one's window.
+    let mut probe = SimulatorClient::new(self::channel(server.addr).await);
+    let n = 256;
+    let id = create(&mut c, n as u32, 3).await;
+    let (tx, requests) = tokio::sync::mpsc::channel(64);
+    let replies = c
+        .step_stream(tokio_stream::wrappers::ReceiverStream::new(requests))
+        .await
+        .expect("open")
+        .into_inner();
+    // Requests keep coming; replies are never read.
+    let sender = {
+        let id = id.clone();
+        tokio::spawn(async move {
+            for _ in 0..64 {
+                if tx.send(step_request(&id, n)).await.is_err() {
+                    break;
+                }
+            }
+        })
+    };
+    // Once the server gives up sending (after the stream idle timeout), the stream ends and
+    // frees the session for unary calls (refused with FAILED_PRECONDITION while it is open).
+    let guard = std::time::Instant::now() + Duration::from_secs(20);
+    // First the stream claims the session (with its first request) ...
+    let bounded = |r: v1::StepRequest| {
+        let mut r = tonic::Request::new(r);
+        r.set_timeout(Duration::from_secs(10));
+        r
+    };
+    loop {
+        match probe.step(bounded(step_request(&id, n))).await {
+            Err(s) if s.code() == Code::FailedPrecondition => break,
+            Ok(_) => assert!(std::time::Instant::now() < guard, "the stream never opened"),
+            Err(s) => panic!("{s:?}"),
+        }
+    }
+    // ... then lets it go.
+    let mut refused = 1;
+    loop {
+        match probe.step(bounded(step_request(&id, n))).await {
+            Ok(_) => break,
+            Err(s) if s.code() == Code::FailedPrecondition => {
+                refused += 1;
+                assert!(
+                    std::time::Instant::now() < guard,
+                    "the stuck stream still holds the session"
+                );
+                tokio::time::sleep(Duration::from_millis(200)).await;
+            }
+            Err(s) => panic!("{s:?}"),
+        }
+    }
+    assert!(
+        refused >= 1,
+        "the stream held the session while it could send"
+    );
+    sender.abort();
+    drop(replies);
+}
