@@ -16,6 +16,24 @@ use crate::error::ClientError;
 /// Largest message the client accepts or sends: matches the server's default limit.
 pub const MAX_MESSAGE_BYTES: usize = 256 << 20;
 
+/// Refuse to send a bearer token without TLS to a host beyond loopback (`localhost` or a
+/// loopback IP), where anyone on the path could read it (the Python client refuses the same).
+fn refuse_token_in_clear(addr: &str, uri: &tonic::codegen::http::Uri) -> Result<(), ClientError> {
+    let host = uri.host().unwrap_or_default();
+    let ip = host.trim_start_matches('[').trim_end_matches(']');
+    let loopback = host.eq_ignore_ascii_case("localhost")
+        || ip
+            .parse::<std::net::IpAddr>()
+            .is_ok_and(|ip| ip.is_loopback());
+    if loopback {
+        return Ok(());
+    }
+    Err(ClientError::Address(format!(
+        "{addr}: a bearer token would travel in clear text beyond loopback; connect over TLS \
+         (give the server's CA certificate, --tls-ca) or leave the token out"
+    )))
+}
+
 /// A connection to one server.
 #[derive(Clone)]
 pub struct Client {
@@ -53,8 +71,11 @@ impl Client {
                 "{addr}: an https address needs the server's CA certificate (--tls-ca)"
             )));
         }
-        let mut endpoint = Endpoint::from_shared(uri)
-            .map_err(|_| ClientError::Address(addr.into()))?
+        let endpoint = Endpoint::from_shared(uri).map_err(|_| ClientError::Address(addr.into()))?;
+        if token.is_some() && tls.is_none() {
+            refuse_token_in_clear(addr, endpoint.uri())?;
+        }
+        let mut endpoint = endpoint
             .http2_keep_alive_interval(std::time::Duration::from_secs(30))
             .keep_alive_timeout(std::time::Duration::from_secs(20))
             .keep_alive_while_idle(true)
@@ -353,5 +374,56 @@ impl StepStream {
             Some(result) => Ok(Step(result)),
             None => Err(ClientError::StreamClosed),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn check(addr: &str) -> Result<(), ClientError> {
+        let uri = if addr.contains("://") {
+            addr.to_string()
+        } else {
+            format!("http://{addr}")
+        };
+        let endpoint = Endpoint::from_shared(uri).expect("uri");
+        refuse_token_in_clear(addr, endpoint.uri())
+    }
+
+    #[test]
+    fn issue_36_a_token_in_clear_text_beyond_loopback_is_refused() {
+        for addr in [
+            "10.1.2.3:50051",
+            "http://example.org:50051",
+            "[2001:db8::1]:50051",
+        ] {
+            match check(addr) {
+                Err(ClientError::Address(m)) => assert!(m.contains("clear text"), "{m}"),
+                other => panic!("{addr}: {other:?}"),
+            }
+        }
+        for addr in [
+            "127.0.0.1:50051",
+            "localhost:50051",
+            "[::1]:50051",
+            "http://LOCALHOST:1",
+        ] {
+            check(addr).unwrap_or_else(|e| panic!("{addr}: {e}"));
+        }
+    }
+
+    #[tokio::test]
+    async fn issue_36_connect_refuses_the_token_before_connecting() {
+        // Port 9 of a documentation address: nothing is dialled, the check comes first.
+        let connect = Client::connect_with("192.0.2.1:9", Some("0123456789abcdef"), None);
+        let refused = tokio::time::timeout(std::time::Duration::from_secs(5), connect)
+            .await
+            .expect("refused at once, without dialling");
+        assert!(
+            matches!(&refused, Err(ClientError::Address(m)) if m.contains("clear text")),
+            "{:?}",
+            refused.err()
+        );
     }
 }
