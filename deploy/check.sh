@@ -15,6 +15,36 @@ venv="${CHECK_VENV:-/tmp/unigait-deploy-check}"
 "$venv/bin/hadolint" "$here/Dockerfile"
 rules="{extends: default, rules: {line-length: {max: 100}, document-start: disable}}"
 "$venv/bin/yamllint" -d "$rules" "$here/k8s"
+# The worst case the server's flags allow against its pod's memory limit (MiB):
+#   envs     (max-total-envs + max-envs) x 32 KiB  sessions' envs, and an evaluation's own
+#   workers  max-evaluations x 2 x policy-memory-mib  an evaluation may load two policies
+#   buffers  max-sessions x 2 x (max-envs KiB + 1) + max-evaluations x 32  requests, replies
+#   base     256                                   binary, runtime, threads, terrain
+# 32 KiB per env: ~28 KB of simulation state (measured at 8192 envs) plus its reply rows. Every
+# flag must be given in the manifest, so the check never relies on the server's defaults.
+memory_check() {
+    local file="$1" flag value limit
+    local -A f=()
+    for flag in max-envs max-total-envs max-sessions max-evaluations policy-memory-mib; do
+        value="$(sed -n "s/^ *- --$flag=\([0-9]*\).*/\1/p" "$file" | head -n1)"
+        [ -n "$value" ] || { echo "$file: give --$flag explicitly" >&2; return 1; }
+        f[$flag]="$value"
+    done
+    limit="$(awk '/limits:/ {l = 1} l && /memory:/ {print $2; exit}' "$file")"
+    case "$limit" in
+        *Gi) limit=$(( ${limit%Gi} * 1024 )) ;;
+        *Mi) limit=${limit%Mi} ;;
+        *) echo "$file: memory limit '$limit' is not in Mi or Gi" >&2; return 1 ;;
+    esac
+    local envs=$(( (f[max-total-envs] + f[max-envs]) * 32 / 1024 ))
+    local workers=$(( f[max-evaluations] * 2 * f[policy-memory-mib] ))
+    local buffers=$(( f[max-sessions] * 2 * (f[max-envs] / 1024 + 1) + f[max-evaluations] * 32 ))
+    local total=$(( envs + workers + buffers + 256 ))
+    echo "$(basename "$file"): worst case $total MiB (envs $envs, policy workers $workers," \
+        "buffers $buffers, base 256) against a limit of $limit MiB"
+    [ "$total" -le "$limit" ] || { echo "$file: the worst case is over the pod's limit" >&2; return 1; }
+}
+memory_check "$here/k8s/statefulset.yaml"
 for version in 1.30.0 1.37.0; do
     "$venv/bin/kubernetes-validate" --strict -k "$version" "$here/k8s/statefulset.yaml"
 done
