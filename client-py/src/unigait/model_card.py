@@ -258,7 +258,9 @@ def model_card(card: CardInputs) -> str:
         f"recipe `{provenance['recipe']}`, stage {provenance.get('stage')} "
         f"({provenance.get('stage_name')}), code `{provenance.get('git_commit')}`"
         if provenance.get("recipe")
-        else f"recipe `{card.lineage or card.recipe}` (the stages as they ran)"
+        else f"recipe `{card.lineage}` (the stages as they ran)"
+        if card.lineage
+        else f"the settings of recipe `{card.recipe}` (before checkpoints recorded their recipe)"
     )
     lines = [
         f"# Policy `{card.name}`",
