@@ -16,6 +16,8 @@ echo "== cargo build (release)"
 cargo build --release --workspace --all-targets --locked
 echo "== cargo test (release)"
 cargo test --release --workspace --locked
+echo "== cargo clippy (-D warnings)"
+cargo clippy --release --workspace --all-targets --locked -- -D warnings
 
 if [ -f client-py/pyproject.toml ]; then
   ensure_python_env
