@@ -90,7 +90,11 @@ fn articulated_mass_matrix_and_bias_match_mujoco() {
     let armature = fixture["armature"].num();
     let gravity = fixture["gravity"].num();
     let tree = ArticulatedTree::from_robot(&RobotModel::go2(), armature).expect("Go2 tree");
-    let names: Vec<&str> = fixture["joint_names"].arr().iter().map(Field::str).collect();
+    let names: Vec<&str> = fixture["joint_names"]
+        .arr()
+        .iter()
+        .map(Field::str)
+        .collect();
     assert_eq!(
         tree.joint_names(),
         names.as_slice(),
