@@ -23,7 +23,7 @@ if [ -f client-py/pyproject.toml ]; then
   ensure_python_env
   echo "== ruff"
   "$VENV/bin/ruff" check client-py tests
-  "$VENV/bin/ruff" check --config client-py/pyproject.toml scripts/check_links.py
+  "$VENV/bin/ruff" check --config client-py/pyproject.toml scripts/check_links.py tools
   echo "== mypy"
   (cd client-py && "$VENV/bin/mypy" src/unigait)
   echo "== pytest"
