@@ -79,18 +79,23 @@ NOT_IN_RECIPE = frozenset(
 )
 
 
-def training_command(argv: Sequence[str]) -> str:
-    """The shell line of a command, without where it ran, resumed or got credentials."""
+def _without(argv: Sequence[str], flags: frozenset[str]) -> list[str]:
+    """``argv`` less each of ``flags`` with its value (``--flag v`` or ``--flag=v``)."""
     kept: list[str] = []
     skip = False
     for arg in argv:
         if skip:
             skip = False
-        elif arg in NOT_IN_RECIPE:
+        elif arg in flags:
             skip = True
-        elif arg.split("=", 1)[0] not in NOT_IN_RECIPE:
+        elif arg.split("=", 1)[0] not in flags:
             kept.append(arg)
-    return shlex.join(["python", "-m", "unigait", *kept])
+    return kept
+
+
+def training_command(argv: Sequence[str]) -> str:
+    """The shell line of a command, without where it ran, resumed or got credentials."""
+    return shlex.join(["python", "-m", "unigait", *_without(argv, NOT_IN_RECIPE)])
 
 
 def _train_recipe(args: argparse.Namespace) -> int:
@@ -311,15 +316,7 @@ def _reproducing_ship(argv: Sequence[str], recipe: str) -> str:
 
     (A fresh run is the recipe's own lineage, so ``--lineage`` goes too.)
     """
-    kept: list[str] = []
-    skip = False
-    for arg in shlex.split(training_command(argv))[3:]:
-        if skip:
-            skip = False
-        elif arg in _SHIP_PLACES:
-            skip = True
-        elif arg.split("=", 1)[0] not in _SHIP_PLACES:
-            kept.append(arg)
+    kept = _without(argv, NOT_IN_RECIPE | _SHIP_PLACES)
     return shlex.join(
         ["python", "-m", "unigait", kept[0], "--run-dir", f"runs/{recipe}", *kept[1:]]
     )

@@ -13,19 +13,14 @@ def git_commit(repo: Path | None = None) -> str:
     git checkout.
     """
     where = ["-C", str(repo)] if repo is not None else []
+
+    def git(*args: str) -> str:
+        out = subprocess.run(["git", *where, *args], capture_output=True, text=True, check=True)
+        return out.stdout.strip()
+
     try:
-        head = subprocess.run(
-            ["git", *where, "rev-parse", "--short", "HEAD"],
-            capture_output=True,
-            text=True,
-            check=True,
-        ).stdout.strip()
-        dirty = subprocess.run(
-            ["git", *where, "status", "--porcelain", "--untracked-files=no"],
-            capture_output=True,
-            text=True,
-            check=True,
-        ).stdout.strip()
+        head = git("rev-parse", "--short", "HEAD")
+        dirty = git("status", "--porcelain", "--untracked-files=no")
     except (OSError, subprocess.CalledProcessError):
         return "unknown"
     return f"{head}+dirty" if dirty else head
