@@ -1,4 +1,4 @@
-//! Evaluating an ONNX policy on the server: `unigait eval` and `unigait record`.
+//! Evaluating an ONNX policy on the server: `unigait-client evaluate` and `unigait-client record`.
 //!
 //! The server rolls the policy out on its own envs over a named scenario (see the server's
 //! scenario list: the Table VI columns `stairs_up_quad` ... `stairs_down_biped`, `table_vi`,
@@ -40,7 +40,7 @@ pub struct RolloutArgs {
     pub seed: u64,
 }
 
-/// `unigait eval`: evaluate a policy and print its metrics.
+/// `unigait-client evaluate`: evaluate a policy and print its metrics.
 #[derive(Clone, Debug, clap::Args)]
 pub struct EvalArgs {
     /// What to evaluate.
@@ -57,7 +57,7 @@ pub const DEFAULT_VIEWER_URL: &str = "rerun+http://127.0.0.1:9876/proxy";
 /// How long `--connect` waits for the viewer to take the recording.
 const CONNECT_TIMEOUT: Duration = Duration::from_secs(30);
 
-/// `unigait record`: evaluate a policy and save, send or serve a rerun recording of one env.
+/// `unigait-client record`: evaluate a policy and save, send or serve a rerun recording of one env.
 #[derive(Clone, Debug, clap::Args)]
 #[command(group(
     clap::ArgGroup::new("output")
@@ -114,7 +114,7 @@ pub struct RecordArgs {
     pub record_env: u32,
 }
 
-/// Where `unigait record` puts the recording.
+/// Where `unigait-client record` puts the recording.
 #[derive(Clone, Debug, PartialEq)]
 pub enum RecordOutput {
     /// An `.rrd` file.
@@ -214,7 +214,7 @@ pub fn format_table(metrics: &HashMap<String, f64>) -> String {
     out
 }
 
-/// `unigait eval`: print the metrics table (and the JSON report with `--json`).
+/// `unigait-client evaluate`: print the metrics table (and the JSON report with `--json`).
 pub async fn run_eval(client: &mut Client, args: &EvalArgs) -> Result<()> {
     let reply = client
         .evaluate(request(&args.rollout, None)?)
@@ -230,7 +230,7 @@ pub async fn run_eval(client: &mut Client, args: &EvalArgs) -> Result<()> {
     Ok(())
 }
 
-/// `unigait record`: print the metrics table and write, send or serve the recording.
+/// `unigait-client record`: print the metrics table and write, send or serve the recording.
 pub async fn run_record(client: &mut Client, args: &RecordArgs) -> Result<()> {
     // Flags and the serve address first: neither must cost a rollout.
     let output = args.output()?;

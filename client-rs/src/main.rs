@@ -64,7 +64,7 @@ async fn connect(cli: &Cli) -> Result<Client> {
 
 #[derive(Debug, Parser)]
 #[command(
-    name = "unigait",
+    name = "unigait-client",
     version,
     about = "Command-line client of the unigait service"
 )]
@@ -109,8 +109,10 @@ enum Command {
     Bench(BenchArgs),
     /// Run the protocol compliance suite against the server.
     Check,
-    /// Evaluate an ONNX policy on one of the paper's scenarios (server-side rollouts).
-    Eval(unigait_client::eval::EvalArgs),
+    /// Evaluate an ONNX policy on one of the paper's scenarios (server-side rollouts); the same
+    /// verb as `python -m unigait evaluate` (`eval` is kept as an alias).
+    #[command(alias = "eval")]
+    Evaluate(unigait_client::eval::EvalArgs),
     /// Evaluate a policy and write, send or serve a rerun recording of the rollout.
     Record(unigait_client::eval::RecordArgs),
     /// Send a saved rerun recording to a viewer or serve it (no simulation server needed).
@@ -255,7 +257,7 @@ async fn main() -> Result<()> {
                 println!("{}", serde_json::to_string_pretty(&report)?);
             }
         }
-        Command::Eval(args) => unigait_client::eval::run_eval(&mut client, &args).await?,
+        Command::Evaluate(args) => unigait_client::eval::run_eval(&mut client, &args).await?,
         Command::Record(args) => unigait_client::eval::run_record(&mut client, &args).await?,
         // Handled before connecting.
         Command::Replay(_) => {}
