@@ -488,6 +488,22 @@ fn signal_name(signal: i32) -> String {
 }
 
 /// Cap one resource of this process.
+/// Confine the worker beyond its resource limits, with what Linux allows without privileges: no
+/// new privileges (a setuid binary gains nothing), and its own empty network namespace inside a
+/// new user namespace where the kernel lets unprivileged processes make one (elsewhere, as in
+/// many containers, the worker keeps the host's network; the model cannot open files or sockets
+/// through tract either way). The environment is already empty (`env_clear` at spawn).
+fn confine() -> std::io::Result<()> {
+    // SAFETY: prctl(2) with PR_SET_NO_NEW_PRIVS and constant arguments.
+    if unsafe { libc::prctl(libc::PR_SET_NO_NEW_PRIVS, 1, 0, 0, 0) } != 0 {
+        return Err(std::io::Error::last_os_error());
+    }
+    // SAFETY: unshare(2) with constant flags, in the still single-threaded worker; on failure the
+    // process is left as it was.
+    let _ = unsafe { libc::unshare(libc::CLONE_NEWUSER | libc::CLONE_NEWNET) };
+    Ok(())
+}
+
 fn limit(resource: libc::__rlimit_resource_t, value: u64) -> std::io::Result<()> {
     let r = libc::rlimit {
         rlim_cur: value as libc::rlim_t,
@@ -524,6 +540,7 @@ fn error_kind(e: &PolicyError) -> u8 {
 /// batches until stdin closes. Call it first thing in the worker subcommand, with nothing else
 /// running in the process.
 pub fn run_worker() -> std::io::Result<()> {
+    confine()?;
     let mut input = BufReader::new(std::io::stdin().lock());
     let mut output = BufWriter::new(std::io::stdout().lock());
     let mut magic = [0u8; 4];

@@ -235,6 +235,44 @@ fn issue_36_a_crashed_policy_worker_is_reported_as_a_crash() {
 }
 
 /// The soft limit on open files of this process (from /proc/self/limits).
+/// The policy worker runs with no new privileges, and in its own network namespace wherever this
+/// machine lets an unprivileged process make one (checked by making one here first).
+#[test]
+fn issue_36_the_policy_worker_runs_confined() {
+    use unigait_policy::{Policy, PolicySpec, SandboxLimits, SandboxedPolicy};
+    let exe = std::path::Path::new(env!("CARGO_BIN_EXE_unigait-server"));
+    let spec = PolicySpec::default();
+    let history = vec![0.0; spec.input_width()];
+    let mut actions = vec![0.0; spec.num_actions];
+    let policy = SandboxedPolicy::spawn(exe, &test_policy(), spec, SandboxLimits::default())
+        .expect("the test policy loads");
+    policy
+        .act(&history, 1, &mut actions)
+        .expect("it still acts");
+    let pid = policy.worker_pid();
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).expect("worker status");
+    assert!(
+        status
+            .lines()
+            .any(|l| l.split_whitespace().eq(["NoNewPrivs:", "1"])),
+        "the worker may gain privileges:\n{status}"
+    );
+    let namespaces_allowed = Command::new("unshare")
+        .args(["--user", "--net", "true"])
+        .status()
+        .is_ok_and(|s| s.success());
+    let net = |p: &str| std::fs::read_link(format!("/proc/{p}/ns/net")).expect("net namespace");
+    if namespaces_allowed {
+        assert_ne!(
+            net(&pid.to_string()),
+            net("self"),
+            "the worker shares the host's network"
+        );
+    } else {
+        eprintln!("unprivileged namespaces are not allowed here: network isolation not checked");
+    }
+}
+
 fn open_files_limit() -> usize {
     std::fs::read_to_string("/proc/self/limits")
         .ok()
