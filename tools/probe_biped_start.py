@@ -1,13 +1,13 @@
-"""Does a checkpoint's policy hold a biped stance it is put in? Policy vs zero action, side by side.
+r"""Does a checkpoint's policy hold a biped stance it is put in? Policy vs zero action.
 
 Every env starts in biped mode at a pitch drawn from [--pitch LOW HIGH] (nose-down, rad), at
 rest, no random episode start; both runs use the same seed, so the same starts. Prints, per
 run, the median pitch over the surviving envs at a few steps, the share of them upright (above
-the task's upright threshold, 1.4 rad), how many are still alive (no termination) and the share
-of biped env-steps with the head on the ground, e.g.::
+the task's upright threshold from the spec, 1.4 rad), how many are still alive (no termination)
+and the share of biped env-steps with the head on the ground, e.g.::
 
-    UNIGAIT_SERVER_BIN=target/release/unigait-server \\
-        .venv/bin/python tests/data/probe_biped_start.py runs/unified_flat_v2/model_latest.pt \\
+    UNIGAIT_SERVER_BIN=target/release/unigait-server \
+        .venv/bin/python tools/probe_biped_start.py runs/unified_flat_v2/model_latest.pt \
         --pitch 1.45 1.55
 
 A policy that has learned the stance keeps its robots above 1.4 rad; zero action (joint
@@ -33,9 +33,12 @@ POSES = ("upright", "head down")
 
 
 class TermsByPose:
-    """Mean weighted reward per env-step of each term, split by pose: upright (pitch above the
-    threshold) and head down (head on the ground, below it). Says whether the stance the policy
-    has not found pays more per step than the head rest it holds."""
+    """Mean weighted reward per env-step of each term, split by pose.
+
+    Poses: upright (pitch above the threshold) and head down (head on the ground, below it).
+    Says whether the stance the policy has not found pays more per step than the head rest it
+    holds.
+    """
 
     def __init__(self, names: tuple[str, ...]) -> None:
         self.names = names
@@ -43,10 +46,12 @@ class TermsByPose:
         self.counts = dict.fromkeys(POSES, 0)
 
     def add(self, pose: str, terms: torch.Tensor, mask: torch.Tensor) -> None:
+        """Add the env-steps in ``mask`` (one step's envs) to ``pose``'s sums."""
         self.sums[pose] += terms[mask].double().sum(0)
         self.counts[pose] += int(mask.sum())
 
     def table(self) -> str:
+        """The terms that are non-zero in either pose, with the per-pose sums and counts."""
         means = {p: self.sums[p] / max(self.counts[p], 1) for p in POSES}
         lines = [f"{'term':<28}" + "".join(f"{p:>14}" for p in POSES)]
         for i, name in enumerate(self.names):
@@ -65,8 +70,10 @@ def run(
     obs_dim: int,
     args: argparse.Namespace,
 ) -> tuple[str, TermsByPose | None]:
-    """One batch of pitched starts, driven by ``policy`` (None: zero action): a line of figures
-    and, with ``--terms``, the surviving envs' reward terms by pose."""
+    """One batch of pitched starts, driven by ``policy`` (None: zero action).
+
+    Returns a line of figures and, with ``--terms``, the surviving envs' reward terms by pose.
+    """
     n = args.envs
     overrides = (
         "[modes]\nbiped_probability = 1.0\nresampling_time_s = 60.0\n"
@@ -100,7 +107,11 @@ def run(
         if step == max(REPORT_STEPS):
             break
         with torch.no_grad():
-            actions = torch.zeros(n, 12) if policy is None else policy(history.flat.view(n, 3, -1))
+            actions = (
+                torch.zeros(n, env.spec.num_actions)
+                if policy is None
+                else policy(history.flat.view(n, 3, -1))
+            )
         out = env.step(actions)
         alive &= ~out.dones
         history.push(out.obs, out.dones)
@@ -120,6 +131,7 @@ def run(
 
 
 def main() -> None:
+    """Parse the command line; run the policy, then zero action, from the same starts."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("checkpoint")
     parser.add_argument("--pitch", type=float, nargs=2, default=(1.45, 1.55))

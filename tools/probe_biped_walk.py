@@ -1,15 +1,18 @@
-"""Does a checkpoint's biped walk where it is told to? Forward speed under fixed commands.
+r"""Does a checkpoint's biped walk where it is told to? Forward speed under fixed commands.
 
 Every env is in biped mode for the whole episode (no mode switch), with one fixed command
 (vx, vy, wz) per run, no observation noise, no random episode start. After a settling time the
 probe measures, over the surviving envs, the base velocity in the heading frame (the frame the
 commands and the tracking reward use: x along the horizontal projection of the body's x axis
 plus its z axis, so the back's direction when standing on the front legs), the share of steps
-above the upright threshold (1.4 rad), the share with the head on the ground and each front
-foot's contact share, e.g.::
+above the task's upright threshold (the spec's, 1.4 rad), the share with the head on the ground
+and each front foot's contact share, e.g.::
 
-    UNIGAIT_SERVER_BIN=target/release/unigait-server \\
-        .venv/bin/python tests/data/probe_biped_walk.py assets/policies/unified_flat/model.pt
+    UNIGAIT_SERVER_BIN=target/release/unigait-server \
+        .venv/bin/python tools/probe_biped_walk.py assets/policies/unified_flat/model.pt
+
+Every slice of o_t and e_t comes from the session spec by name; the angular velocity's
+scale from the package's observation table (the spec does not publish scales).
 
 A walking biped follows the sign and roughly the size of vx, and turns at wz (the probe
 reports the world yaw rate too); one that stands in place moves at a few cm/s whatever it is
@@ -28,14 +31,29 @@ import argparse
 import mujoco
 import numpy as np
 import torch
-from unigait.client import SessionConfig, open_session
+from unigait.client import SessionConfig, Spec, open_session
 from unigait.env import ObservationHistory, TorchVecEnv
 from unigait.export import load_policy
 from unigait.mujoco.model import DEFAULT_Q, build_model
+from unigait.mujoco.observation import OBS_SCALE
 from unigait.server_process import LocalServer
 
-UPRIGHT_PITCH = 1.4
-OMEGA_SCALE = 0.25  # o_t's angular velocity scale
+
+class ObsFields:
+    """Where the probe's inputs sit in o_t and e_t, all looked up by name in the spec."""
+
+    def __init__(self, spec: Spec) -> None:
+        phi = spec.obs.field("phi")
+        self.gravity_y, self.pitch, self.gravity_z = phi.offset, phi.offset + 1, phi.offset + 2
+        self.omega = spec.obs.slice("omega")
+        # o_t holds omega times its scale; the spec carries no scales, the package's table does.
+        self.omega_scale = torch.from_numpy(OBS_SCALE[self.omega])
+        self.q = spec.obs.slice("q")
+        self.velocity = spec.labels.slice("base_lin_vel")
+        contact = spec.labels.field("foot_contact")
+        # Feet in FL, FR, RL, RR order: the first two are the front feet.
+        self.front_contact = slice(contact.offset, contact.offset + 2)
+        self.upright_pitch = spec.upright_pitch
 
 
 def overrides(vx: float, vy: float, wz: float) -> str:
@@ -49,14 +67,15 @@ def overrides(vx: float, vy: float, wz: float) -> str:
     )
 
 
-def heading_frame(obs: torch.Tensor) -> torch.Tensor:
+def heading_frame(obs: torch.Tensor, at: ObsFields) -> torch.Tensor:
     """[N, 3, 3] the world's heading-frame axes (forward, left, up) in the base frame, from o_t.
 
     o_t's orientation part is (gravity y, Euler pitch, gravity z) in the base frame; gravity x
-    is sin(pitch). The heading axis is (1, 0, 1) of the base frame made horizontal.
+    is sin(pitch). The heading axis is (1, 0, 1) of the base frame made horizontal: the rule of
+    ``unigait.mujoco.vec_env.heading_direction``, which needs the world rotation o_t lacks.
     """
-    pitch = obs[:, 4]
-    gravity = torch.stack([torch.sin(pitch), obs[:, 3], obs[:, 5]], dim=1)
+    pitch = obs[:, at.pitch]
+    gravity = torch.stack([torch.sin(pitch), obs[:, at.gravity_y], obs[:, at.gravity_z]], dim=1)
     up = -gravity / gravity.norm(dim=1, keepdim=True)
     forward = torch.tensor([1.0, 0.0, 1.0]).expand_as(up)
     forward = forward - (forward * up).sum(1, keepdim=True) * up
@@ -100,7 +119,8 @@ class FrontLegReach:
     right under its hip has almost no sideways reach: the leg is singular in that direction.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, q: slice) -> None:
+        self.q = q  # o_t's joint angles (minus the defaults)
         self.go2 = build_model()
         self.data = mujoco.MjData(self.go2.model)
         self.jacp = np.zeros((3, self.go2.model.nv))
@@ -109,7 +129,7 @@ class FrontLegReach:
         """Mean over both front feet, for one env's o_t and :func:`heading_frame` rows."""
         go2, d = self.go2, self.data
         mujoco.mju_mat2Quat(d.qpos[3:7], world_from_base.astype(np.float64).reshape(-1))
-        d.qpos[go2.qpos_adr] = DEFAULT_Q + obs[9:21]
+        d.qpos[go2.qpos_adr] = DEFAULT_Q + obs[self.q]
         mujoco.mj_kinematics(go2.model, d)
         mujoco.mj_comPos(go2.model, d)
         reach = []
@@ -127,17 +147,19 @@ def probe(
     settle: int,
     seed: int,
 ) -> str:
+    """One run at ``command`` (vx, vy, wz): the line of figures the module docstring lists."""
     vx, vy, wz = command
     policy, dims = load_policy(checkpoint)
     with LocalServer() as server:
         config = SessionConfig(num_envs=envs, seed=seed, task_overrides_toml=overrides(vx, vy, wz))
         env = TorchVecEnv(open_session(server.address, config), "cpu")
+        at = ObsFields(env.spec)
         history = ObservationHistory(envs, 3, dims["obs_dim"], torch.device("cpu"))
         history.reset(env.last.obs)
         alive = torch.ones(envs, dtype=torch.bool)
         velocity, upright, head, front, error, turn, tilt = [], [], [], [], [], [], []
         series, kept = [], torch.ones(envs, dtype=torch.bool)  # every env's velocity, for the sway
-        reach_of, reach = FrontLegReach(), []
+        reach_of, reach = FrontLegReach(at.q), []
         target = torch.tensor([vx, vy])
         velocity_sum = torch.zeros(envs, 2)
         counted = torch.zeros(envs)
@@ -151,20 +173,20 @@ def probe(
                 continue
             m = alive & ~out.dones
             kept &= m
-            frame = heading_frame(out.obs)
-            v_all = in_heading_frame(frame, out.labels[:, 0:3])[:, :2]
+            frame = heading_frame(out.obs, at)
+            v_all = in_heading_frame(frame, out.labels[:, at.velocity])[:, :2]
             series.append(v_all)
             frame, v_now = frame[m], v_all[m]
-            omega = in_heading_frame(frame, out.obs[m, 6:9] / OMEGA_SCALE)
+            omega = in_heading_frame(frame, out.obs[m, at.omega] / at.omega_scale)
             tilt.append(omega[:, :2].norm(dim=1))
             velocity.append(v_now)
             error.append((v_now - target).norm(dim=1))
             turn.append(omega[:, 2])
             velocity_sum[m] += v_now
             counted[m] += 1
-            upright.append(out.obs[m, 4] > UPRIGHT_PITCH)
+            upright.append(out.obs[m, at.pitch] > at.upright_pitch)
             head.append(out.head_contact[m].bool())
-            front.append(out.labels[m, 3:5] > 0.5)
+            front.append(out.labels[m, at.front_contact] > 0.5)
             if t % 10 == 0:  # a pose every 0.2 s is plenty for a stance's mean
                 poses = zip(out.obs[m].numpy(), frame.numpy(), strict=True)
                 reach += [reach_of(o, f) for o, f in poses]
@@ -192,6 +214,7 @@ def probe(
 
 
 def main() -> None:
+    """Parse the command line and print one line per --vx."""
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     p.add_argument("checkpoint", help="model_*.pt")
     p.add_argument("--vx", type=float, nargs="+", default=[-0.4, 0.0, 0.4])
