@@ -1,4 +1,4 @@
-"""Build step: the gRPC stubs from ../proto, and the recipes and milestones from ../assets.
+"""Build step: the gRPC stubs from ../proto; recipes, milestones and the Go2 URDF from ../assets.
 
 The proto is the single source of the wire format; assets/ the single home of the data files.
 
@@ -19,8 +19,9 @@ from setuptools import setup
 from setuptools.command.build_py import build_py
 
 HERE = Path(__file__).resolve().parent
-#: The project's data files the package carries (recipes, milestones): their home is assets/.
-ASSETS = ("recipes", "milestones.toml")
+#: The project's data files the package carries (recipes, milestones, the Go2 robot model: the
+#: URDF with its licence and notes, no meshes): their home is assets/.
+ASSETS = ("recipes", "milestones.toml", "go2")
 ASSETS_DIR = HERE / "src" / "unigait" / "_assets"
 PROTO_FILE = Path("unigait/v1/unigait.proto")
 OUT_DIR = HERE / "src" / "unigait" / "_proto" / "v1"
@@ -74,7 +75,7 @@ def generate_stubs() -> None:
 
 
 def link_assets() -> None:
-    """Link ../assets/{recipes,milestones.toml} into src/unigait/_assets/ (git-ignored).
+    """Link ../assets/{recipes,milestones.toml,go2} into src/unigait/_assets/ (git-ignored).
 
     A link, not a copy: an editable install then reads the repository's files as they change,
     and a wheel's build copies what the link points at.

@@ -28,4 +28,20 @@ if [ -f client-py/pyproject.toml ]; then
   (cd client-py && "$VENV/bin/mypy" src/unigait)
   echo "== pytest"
   UNIGAIT_SERVER_BIN="$PWD/target/release/unigait-server" "$VENV/bin/pytest" -q client-py/tests tests
+  echo "== pytest against a non-editable install (the package carries its data files)"
+  # The venv's install is editable (it reads the checkout); a user's wheel carries only what the
+  # build copies. Build client-py from a clean copy (stale build/ or egg-info files would mask an
+  # omission), install it without deps into a temp dir first on the path (the venv gives the
+  # deps), and run the packaged-data tests against it, from that dir.
+  installed="$(mktemp -d)"
+  trap 'rm -rf "$installed"' EXIT
+  mkdir "$installed/src"
+  tar -c --exclude=build --exclude='*.egg-info' --exclude=_assets --exclude=_proto \
+    --exclude=__pycache__ --exclude='.*_cache' client-py | tar -x -C "$installed/src"
+  ln -s "$PWD/assets" "$PWD/proto" "$installed/src/"
+  "$VENV/bin/pip" install -q --no-deps --no-build-isolation --target "$installed/site" \
+    "$installed/src/client-py"
+  packaged_tests="$PWD/client-py/tests/test_packaged_assets.py"
+  (cd "$installed" && PYTHONPATH="$installed/site" UNIGAIT_INSTALLED_ROOT="$installed/site" \
+    "$VENV/bin/python" -m pytest -q -p no:cacheprovider "$packaged_tests")
 fi

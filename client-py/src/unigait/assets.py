@@ -1,9 +1,9 @@
-"""The project's data files that the package carries: training recipes and milestones.
+"""The project's data files that the package carries: training recipes, milestones, the Go2.
 
 They have one home, ``assets/`` in the repository (``assets/recipes/*.toml``,
-``assets/milestones.toml``), which a Rust learner reads too. The package's build (``setup.py``)
-links them into ``unigait/_assets/`` for an editable install and copies them into a wheel, so an
-installed package reads the same files.
+``assets/milestones.toml``, ``assets/go2/go2.urdf``), which the Rust crates read too. The
+package's build (``setup.py``) links them into ``unigait/_assets/`` for an editable install and
+copies them into a wheel, so an installed package reads the same files.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from pathlib import Path
 
 
 def assets_dir() -> Path:
-    """The package's ``_assets`` folder (recipes and milestones)."""
+    """The package's ``_assets`` folder (recipes, milestones, the Go2 model)."""
     return Path(str(resources.files("unigait").joinpath("_assets")))
 
 
@@ -25,3 +25,8 @@ def recipes_dir() -> Path:
 def milestones_file() -> Path:
     """The packaged milestones file."""
     return assets_dir() / "milestones.toml"
+
+
+def go2_urdf() -> Path:
+    """The packaged Go2 URDF (the server's robot; its licence and README sit beside it)."""
+    return assets_dir() / "go2" / "go2.urdf"

@@ -44,7 +44,11 @@ def _sim2sim(args: argparse.Namespace) -> int:
 def _crosscheck(args: argparse.Namespace) -> int:
     from unigait.mujoco.crosscheck import compare, find_crosscheck_binary, format_table
 
-    binary = Path(args.binary) if args.binary else find_crosscheck_binary()
+    try:
+        binary = Path(args.binary) if args.binary else find_crosscheck_binary()
+    except FileNotFoundError as e:
+        print(f"error: {e} (or pass --binary)", file=sys.stderr)
+        return 1
     if not binary.is_file():
         print(
             f"error: {binary} not found: `cargo build --release -p unigait-sim --examples`",

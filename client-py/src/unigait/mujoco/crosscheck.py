@@ -12,6 +12,7 @@ import json
 import math
 import os
 import subprocess
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -20,18 +21,29 @@ from unigait.mujoco.model import PhysicsOptions
 from unigait.mujoco.scenarios import SCENARIOS, run
 
 
-def find_crosscheck_binary() -> Path:
+def find_crosscheck_binary(search_from: Sequence[Path] | None = None) -> Path:
     """``$UNIGAIT_CROSSCHECK_BIN`` or ``target/release/examples/crosscheck`` of the repository.
 
-    The path is returned whether or not the file exists.
+    The binary is a repository tool: the checkout is found above ``search_from`` (default: this
+    module, for an editable install, then the working directory, for an installed package run
+    from a checkout). The path is returned whether or not the file exists.
+
+    Raises:
+        FileNotFoundError: Not in a checkout (no ``Cargo.toml`` beside ``server/`` above any start).
     """
     env = os.environ.get("UNIGAIT_CROSSCHECK_BIN")
     if env:
         return Path(env)
-    for parent in Path(__file__).resolve().parents:
-        if (parent / "Cargo.toml").is_file() and (parent / "server").is_dir():
-            return parent / "target" / "release" / "examples" / "crosscheck"
-    return Path("target/release/examples/crosscheck")
+    starts = search_from if search_from is not None else (Path(__file__), Path.cwd())
+    for start in starts:
+        for parent in (start.resolve(), *start.resolve().parents):
+            if (parent / "Cargo.toml").is_file() and (parent / "server").is_dir():
+                return parent / "target" / "release" / "examples" / "crosscheck"
+    raise FileNotFoundError(
+        "the crosscheck binary is built in a unigait checkout (`cargo build --release -p "
+        "unigait-sim --examples`), and none was found above "
+        f"{', '.join(str(s) for s in starts)}; run from one or set UNIGAIT_CROSSCHECK_BIN"
+    )
 
 
 def run_ours(

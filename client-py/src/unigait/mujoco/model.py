@@ -29,6 +29,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from unigait.assets import go2_urdf
+
 JOINT_NAMES: tuple[str, ...] = tuple(
     f"{leg}_{part}_joint" for leg in ("FL", "FR", "RL", "RR") for part in ("hip", "thigh", "calf")
 )
@@ -49,21 +51,21 @@ LEG_LINK_SUFFIXES = ("_hip", "_thigh", "_calf")
 
 
 def find_go2_urdf() -> Path:
-    """Path of ``assets/go2/go2.urdf``: ``$UNIGAIT_GO2_URDF`` or the repository's copy.
+    """Path of the Go2 URDF: ``$UNIGAIT_GO2_URDF`` or the package's copy of ``assets/go2``.
 
     Raises:
-        FileNotFoundError: When neither exists.
+        FileNotFoundError: When the file is missing (a build that left out the package data).
     """
     env = os.environ.get("UNIGAIT_GO2_URDF")
-    if env:
-        return Path(env)
-    for parent in Path(__file__).resolve().parents:
-        candidate = parent / "assets" / "go2" / "go2.urdf"
-        if candidate.is_file():
-            return candidate
-    raise FileNotFoundError(
-        "assets/go2/go2.urdf not found above the unigait package; set UNIGAIT_GO2_URDF"
-    )
+    path = Path(env) if env else go2_urdf()
+    if not path.is_file():
+        hint = (
+            "set by $UNIGAIT_GO2_URDF"
+            if env
+            else "the package's copy of assets/go2: reinstall client-py, whose build adds it"
+        )
+        raise FileNotFoundError(f"Go2 URDF {path} not found ({hint})")
+    return path
 
 
 @dataclass(frozen=True)
