@@ -1,5 +1,7 @@
 """Training recipes as data: stages in order, each a complete training config.
 
+Why: docs/src/decisions/0021-recipes-as-data.md; how to use them: docs/src/recipes.md.
+
 A recipe is a TOML file (home: ``assets/recipes/``; the package carries them)::
 
     description = "..."

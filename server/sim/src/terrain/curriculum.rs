@@ -72,7 +72,8 @@ pub struct LevelRule {
 /// commanded distance and at least `promote_min_distance`; down one when it walked less than
 /// `demote_share` of it and is not moving up (legged_gym's demotion). Going down stops at level
 /// 0; going past the top level sends the env to a level drawn uniformly from `0..num_levels`, so
-/// solved envs keep visiting every level (legged_gym).
+/// solved envs keep visiting every level (legged_gym). Why relative to the commands:
+/// docs/src/decisions/0022-command-relative-promotion.md.
 pub fn next_level(
     current: u32,
     episode: EpisodeDistance,
