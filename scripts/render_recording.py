@@ -4,7 +4,7 @@ r"""Render a unigait recording to a PNG without a display, in the layout it carr
 rerun's own viewer (the `rerun` binary of the venv's rerun-sdk) runs headless (`--headless`,
 an offscreen window) on Mesa's software Vulkan driver (lavapipe: Debian's
 `mesa-vulkan-drivers`), so no GPU and no X server are needed. The recording is streamed to
-that viewer up to the asked step with `unigait replay --connect --until-step` (a live stream:
+that viewer up to the asked step with `unigait-client replay --connect --until-step` (a live stream:
 the viewer follows it to its last step, the one we want; the viewer layout comes with it) and
 photographed with rerun's `ViewerClient.save_screenshot`. The picture is scaled to `--width`
 and palette-compressed for the README.
@@ -28,7 +28,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 RERUN = ROOT / ".venv" / "bin" / "rerun"
-UNIGAIT = ROOT / "target" / "release" / "unigait"
+UNIGAIT = ROOT / "target" / "release" / "unigait-client"
 
 
 def free_port() -> int:

@@ -1,5 +1,5 @@
 //! The protocol's contract as checks any server must pass, in the spirit of dm_env_rpc's
-//! compliance tests. Run with `unigait check --server ADDR` or from the test suite.
+//! compliance tests. Run with `unigait-client check --server ADDR` or from the test suite.
 
 use std::future::Future;
 

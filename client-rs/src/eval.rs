@@ -252,7 +252,7 @@ pub async fn run_record(client: &mut Client, args: &RecordArgs) -> Result<()> {
     .await
 }
 
-/// `unigait replay`: send or serve a saved recording (e.g. the main job's
+/// `unigait-client replay`: send or serve a saved recording (e.g. the main job's
 /// `runs/main/rollout.rrd`), its viewer layout included, to viewers.
 #[derive(Clone, Debug, clap::Args)]
 #[command(group(
@@ -309,7 +309,7 @@ impl ReplayArgs {
     }
 }
 
-/// `unigait replay`: send or serve a saved recording. Needs no simulation server.
+/// `unigait-client replay`: send or serve a saved recording. Needs no simulation server.
 pub async fn run_replay(args: &ReplayArgs) -> Result<()> {
     let output = args.output()?;
     let rrd = std::fs::read(&args.file)
