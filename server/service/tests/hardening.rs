@@ -51,14 +51,7 @@ impl TestServer {
     }
 
     async fn client(&self) -> SimulatorClient<Channel> {
-        let channel = Channel::from_shared(format!("http://{}", self.addr))
-            .expect("uri")
-            .connect()
-            .await
-            .expect("connect");
-        SimulatorClient::new(channel)
-            .max_decoding_message_size(64 << 20)
-            .max_encoding_message_size(64 << 20)
+        common::connect(self.addr).await
     }
 
     /// Ask the server to stop; returns how long it took to return.

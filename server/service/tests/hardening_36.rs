@@ -2,6 +2,8 @@
 //! costs the server nothing (the `unigait-server` binary spawned, its peak RSS read from /proc),
 //! policy worker crashes, transport limits, per-session calls in flight, stuck streams.
 
+mod common;
+
 use std::io::{BufRead, BufReader};
 use std::net::SocketAddr;
 use std::process::{Child, Command, Stdio};
@@ -54,14 +56,7 @@ impl SpawnedServer {
     }
 
     async fn client(&self) -> SimulatorClient<Channel> {
-        let channel = Channel::from_shared(format!("http://{}", self.addr))
-            .expect("uri")
-            .connect()
-            .await
-            .expect("connect");
-        SimulatorClient::new(channel)
-            .max_decoding_message_size(64 << 20)
-            .max_encoding_message_size(64 << 20)
+        common::connect(self.addr).await
     }
 
     /// A field of /proc/<pid>/status in KiB (VmHWM: the peak resident set).

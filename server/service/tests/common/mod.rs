@@ -51,3 +51,18 @@ impl tonic::codec::Decoder for RawCodec {
         Ok(Some(RawBytes(v)))
     }
 }
+
+/// A client of the server at `addr` (plaintext), with message limits large enough for any batch
+/// a test sends.
+pub async fn connect(
+    addr: std::net::SocketAddr,
+) -> unigait_proto::v1::simulator_client::SimulatorClient<tonic::transport::Channel> {
+    let channel = tonic::transport::Channel::from_shared(format!("http://{addr}"))
+        .expect("uri")
+        .connect()
+        .await
+        .expect("connect");
+    unigait_proto::v1::simulator_client::SimulatorClient::new(channel)
+        .max_decoding_message_size(64 << 20)
+        .max_encoding_message_size(64 << 20)
+}
