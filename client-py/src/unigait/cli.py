@@ -158,17 +158,8 @@ def _train(args: argparse.Namespace) -> int:
         return 2
     import dataclasses
 
-    import torch
-
-    from unigait.config import (
-        load_config,
-        resume_upright_curriculum,
-        session_config,
-        with_task_setting,
-    )
-    from unigait.env import TorchVecEnv
-    from unigait.provenance import git_commit
-    from unigait.runners import CheckpointMismatchError, OnPolicyRunner
+    from unigait.config import load_config, with_task_setting
+    from unigait.runners import CheckpointMismatchError, train
 
     overrides = list(args.set or [])
     if args.num_envs is not None:
@@ -187,23 +178,11 @@ def _train(args: argparse.Namespace) -> int:
     if args.quad_only:
         task = with_task_setting(cfg.env.task, "modes.biped_probability", 0.0)
         cfg = dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, task=task))
-    log_dir = Path(cfg.runner.log_dir)
-    refusal = _fresh_log_dir(log_dir, args)
+    refusal = _fresh_log_dir(Path(cfg.runner.log_dir), args)
     if refusal:
         print(f"error: {refusal}", file=sys.stderr)
         return 2
-    if args.resume or args.init_from:
-        # A stage started from an upright policy (terrain after flat, say) keeps its threshold
-        # too, rather than paying I_up from 1.0 rad again while the curriculum climbs back.
-        source = args.resume or args.init_from
-        checkpoint = torch.load(source, map_location="cpu", weights_only=False)
-        cfg = resume_upright_curriculum(cfg, checkpoint)
-    torch.manual_seed(cfg.runner.seed)
-    if cfg.runner.torch_threads > 0:
-        torch.set_num_threads(cfg.runner.torch_threads)
-    log_dir.mkdir(parents=True, exist_ok=True)
-    (log_dir / "config.toml").write_text(cfg.to_toml())
-    session_cfg = session_config(cfg)
+    stage = training_command(args.argv)
     if args.ray is not None:  # servers as Ray actors, lost ones replaced: unigait.ray
         from unigait.ray import PoolConfigError, ServerCredentials, train_on_ray
 
@@ -223,7 +202,7 @@ def _train(args: argparse.Namespace) -> int:
                 cpus_per_server=args.cpus_per_server,
                 resume=args.resume,
                 init_from=args.init_from,
-                stage=training_command(args.argv),
+                stage=stage,
                 credentials=credentials,
                 host=None if args.server_host == "node" else args.server_host,
             )
@@ -232,30 +211,19 @@ def _train(args: argparse.Namespace) -> int:
             return 2
         return 0
     with _servers(cfg.env.servers, cfg.env.server_bin) as addresses:
-        session = open_session(addresses, session_cfg, **_connection(args))
-        env = TorchVecEnv(session, cfg.runner.device)
+        connection = _connection(args)
         try:
-            runner = OnPolicyRunner(env, cfg, log_dir)
-            try:
-                if args.resume:
-                    runner.load(args.resume)
-                    print(f"resumed from {args.resume} at iteration {runner.iteration}")
-                elif args.init_from:
-                    runner.load_weights(args.init_from)
-                    print(f"networks initialised from {args.init_from}")
-            except CheckpointMismatchError as err:
-                print(f"error: {err}", file=sys.stderr)
-                return 2
-            runner.record_stage(training_command(args.argv))
-            runner.provenance = {"git_commit": git_commit()}
-            remaining = max(cfg.runner.max_iterations - runner.iteration, 0)
-            print(
-                f"training {env.num_envs} envs x {cfg.runner.num_steps_per_env} steps on "
-                f"{', '.join(addresses)} for {remaining} iterations; output in {log_dir}"
+            train(
+                cfg,
+                lambda session_cfg: open_session(addresses, session_cfg, **connection),
+                resume=args.resume,
+                init_from=args.init_from,
+                stage=stage,
+                servers=", ".join(addresses),
             )
-            runner.learn(remaining)
-        finally:
-            env.close()
+        except CheckpointMismatchError as err:
+            print(f"error: {err}", file=sys.stderr)
+            return 2
     return 0
 
 

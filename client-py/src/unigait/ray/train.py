@@ -26,13 +26,13 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-import torch
-
 from unigait.config import TrainConfig, session_config
-from unigait.env import TorchVecEnv
 from unigait.ray.credentials import ServerCredentials
 from unigait.ray.pool import PoolConfigError, ServerPool, ship_binary_env
-from unigait.runners import OnPolicyRunner
+from unigait.runners import OnPolicyRunner, train
+
+# session_config stays importable from here: the Ray tests build their sessions with it.
+__all__ = ["ResilientRunner", "session_config", "train_on_ray", "train_with_pool"]
 
 log = logging.getLogger(__name__)
 
@@ -59,7 +59,7 @@ def train_with_pool(
     init_from: str | Path | None = None,
     stage: str | None = None,
 ) -> list[dict[str, float]]:
-    """Train ``cfg.runner.max_iterations`` (minus a resumed checkpoint's) over a started pool.
+    """:func:`unigait.runners.train` over a started pool.
 
     Args:
         pool: Started servers; the batch is sharded over them, lost ones are replaced.
@@ -71,32 +71,19 @@ def train_with_pool(
     Returns:
         The logged scalars of each iteration.
     """
-    torch.manual_seed(cfg.runner.seed)
-    if cfg.runner.torch_threads > 0:
-        torch.set_num_threads(cfg.runner.torch_threads)
-    log_dir = Path(cfg.runner.log_dir)
-    log_dir.mkdir(parents=True, exist_ok=True)
-    (log_dir / "config.toml").write_text(cfg.to_toml())
-    env = TorchVecEnv(pool.open_session(session_config(cfg)), cfg.runner.device)
-    try:
-        runner = ResilientRunner(env, cfg, log_dir)
-        if resume:
-            runner.load(resume)
-            print(f"resumed from {resume} at iteration {runner.iteration}")
-        elif init_from:
-            runner.load_weights(init_from)
-            print(f"networks initialised from {init_from}")
-        if stage:
-            runner.record_stage(stage)
-        remaining = max(cfg.runner.max_iterations - runner.iteration, 0)
-        print(
-            f"training {env.num_envs} envs x {cfg.runner.num_steps_per_env} steps on "
-            f"{pool.num_servers} Ray server actor(s) ({pool.cpus_per_server} CPU each: "
-            f"{', '.join(pool.addresses)}) for {remaining} iterations; output in {log_dir}"
-        )
-        return runner.learn(remaining)
-    finally:
-        env.close()
+    where = (
+        f"{pool.num_servers} Ray server actor(s) ({pool.cpus_per_server} CPU each: "
+        f"{', '.join(pool.addresses)})"
+    )
+    return train(
+        cfg,
+        pool.open_session,
+        resume=resume,
+        init_from=init_from,
+        stage=stage,
+        runner_class=ResilientRunner,
+        servers=where,
+    )
 
 
 def train_on_ray(

@@ -5,5 +5,6 @@ from unigait.runners.on_policy_runner import (
     OnPolicyRunner,
     build_networks,
 )
+from unigait.runners.training import train
 
-__all__ = ["CheckpointMismatchError", "OnPolicyRunner", "build_networks"]
+__all__ = ["CheckpointMismatchError", "OnPolicyRunner", "build_networks", "train"]
