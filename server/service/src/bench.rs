@@ -157,7 +157,7 @@ pub fn run(args: &BenchArgs) -> Result<BenchReport> {
         kind: args.terrain.clone(),
         level: args.level,
     };
-    let (terrain, _) = crate::terrain::terrain_for(Some(&selection), args.seed)?;
+    let (terrain, _) = unigait_server::terrain_for(Some(&selection), args.seed)?;
     let options = VecEnvOptions {
         num_envs: args.envs,
         seed: args.seed,

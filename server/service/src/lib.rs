@@ -1,14 +1,13 @@
 //! unigait-server: the gRPC service over the simulation core (sessions, batched step streams,
-//! limits, errors) and the in-process benchmark.
+//! limits, errors). The in-process `bench` and `probe` commands belong to the binary
+//! (`src/main.rs`), not to this API.
 #![warn(missing_docs)]
 
-pub mod bench;
 mod convert;
 mod error;
 mod evaluate;
 mod limits;
 mod overrides;
-pub mod probe;
 mod server;
 mod service;
 mod session;
@@ -21,3 +20,4 @@ pub use server::{
     MIN_TOKEN_LEN, ServeError, ServeOptions, TransportLimits, check_token, is_loopback, serve,
     shutdown_signal,
 };
+pub use terrain::terrain_for;

@@ -1,5 +1,9 @@
 //! `unigait-server`: serve batched Go2 envs over gRPC, or benchmark the core in process.
 
+// Binary-only commands: the in-process benchmark and the start probe.
+mod bench;
+mod probe;
+
 use std::net::SocketAddr;
 use std::path::PathBuf;
 
@@ -7,8 +11,7 @@ use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
 use unigait_policy::SandboxLimits;
 use unigait_server::{
-    Limits, ServeOptions, TransportLimits, bench, check_token, is_loopback, probe, serve,
-    shutdown_signal,
+    Limits, ServeOptions, TransportLimits, check_token, is_loopback, serve, shutdown_signal,
 };
 use unigait_sim::task::TaskConfig;
 
