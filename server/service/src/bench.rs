@@ -7,6 +7,7 @@ use anyhow::Result;
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
+use unigait_sim::physics::PhysicsCounters;
 use unigait_sim::prelude::*;
 use unigait_sim::task::projected_gravity;
 
@@ -55,6 +56,11 @@ pub struct BenchArgs {
     /// terminations reset them, so fallen robots resting on their heads stay in the batch.
     #[arg(long)]
     pub reference_loop: bool,
+    /// Build the robots without their joints (13 free bodies each, torques still applied): the
+    /// cost of rapier's pipeline outside the joint solver. The robots fall apart: not a
+    /// simulation of the Go2.
+    #[arg(long)]
+    pub no_joints: bool,
     /// A TOML fragment overriding the task config, e.g. 'physics.solver_iterations = 8'.
     #[arg(long = "set")]
     pub overrides: Vec<String>,
@@ -98,6 +104,89 @@ pub struct BenchReport {
     pub physics_share: f64,
     /// Wall time of the timed steps (s).
     pub wall_s: f64,
+    /// The robots had no joints (`--no-joints`).
+    pub no_joints: bool,
+    /// Where a robot physics step's time went (us), from rapier's stage timers and ours.
+    pub us_per_robot_step: StageMicros,
+    /// Contact points the solver saw, per robot physics step.
+    pub contacts_per_robot_step: f64,
+    /// Contact pairs (collider pairs near enough to test) per robot physics step.
+    pub contact_pairs_per_robot_step: f64,
+    /// Constraints (contact manifolds and joints) the solver saw, per robot physics step.
+    pub constraints_per_robot_step: f64,
+}
+
+/// Microseconds per robot physics step by stage, over the timed steps. Indented names in
+/// the docs are parts of the stage above them.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct StageMicros {
+    /// Wall time times threads: everything, fall resets and the task included.
+    pub wall: f64,
+    /// The env layer's physics stage: actions to targets, the world's steps, the read-back.
+    pub physics_stage: f64,
+    /// Our `RobotWorld::step`: torques + rapier's pipeline + after.
+    pub step: f64,
+    /// Ours, before the pipeline: joint angles and speeds, PD, passive and stop torques.
+    pub torques: f64,
+    /// Rapier's pipeline step, the sum of the next seven stages and `rapier_other`.
+    pub pipeline: f64,
+    /// Rapier: user changes.
+    pub user_changes: f64,
+    /// Rapier: collision detection (broad + narrow phase and AABB updates).
+    pub collision_detection: f64,
+    /// Rapier, part of collision detection: broad phase.
+    pub broad_phase: f64,
+    /// Rapier, part of collision detection: narrow phase.
+    pub narrow_phase: f64,
+    /// Rapier: island construction.
+    pub island_construction: f64,
+    /// Rapier: collecting the constraints.
+    pub constraints_collection: f64,
+    /// Rapier: body updates (forces, integration to final positions).
+    pub update: f64,
+    /// Rapier: the solver.
+    pub solver: f64,
+    /// Rapier, part of the solver: constraint assembly.
+    pub assembly: f64,
+    /// Rapier, part of the solver: velocity resolution (substeps, PGS).
+    pub resolution: f64,
+    /// Rapier: CCD.
+    pub ccd: f64,
+    /// Rapier: the pipeline's time outside its timed stages.
+    pub rapier_other: f64,
+    /// Ours, after the pipeline: quarantine, leg contacts, extra-iteration flags.
+    pub after: f64,
+    /// Ours, once per policy step: reading the states back (spread over its physics steps).
+    pub read_back: f64,
+}
+
+impl StageMicros {
+    /// The timed steps' counters `c`, with the env layer's physics time and the wall time
+    /// times threads (s), per robot physics step.
+    fn per_robot_step(c: &PhysicsCounters, physics_stage_s: f64, wall_cpu_s: f64) -> Self {
+        let us = |seconds: f64| seconds * 1e6 / c.robot_steps.max(1) as f64;
+        Self {
+            wall: us(wall_cpu_s),
+            physics_stage: us(physics_stage_s),
+            step: us(c.step_s),
+            torques: us(c.torques_s),
+            pipeline: us(c.pipeline_s),
+            user_changes: us(c.user_changes_s),
+            collision_detection: us(c.collision_detection_s),
+            broad_phase: us(c.broad_phase_s),
+            narrow_phase: us(c.narrow_phase_s),
+            island_construction: us(c.island_construction_s),
+            constraints_collection: us(c.constraints_collection_s),
+            update: us(c.update_s),
+            solver: us(c.solver_s),
+            assembly: us(c.assembly_s),
+            resolution: us(c.resolution_s),
+            ccd: us(c.ccd_s),
+            rapier_other: us(c.rapier_other_s),
+            after: us(c.after_s),
+            read_back: us(c.read_back_s),
+        }
+    }
 }
 
 /// `--reference-loop`'s start state: the default pose, level, at rest (Table IV's ranges
@@ -156,8 +245,9 @@ pub fn run(args: &BenchArgs) -> Result<BenchReport> {
     let selection = unigait_proto::v1::TerrainConfig {
         kind: args.terrain.clone(),
         level: args.level,
+        initial_levels: Vec::new(),
     };
-    let (terrain, _) = unigait_server::terrain_for(Some(&selection), args.seed)?;
+    let (terrain, _) = unigait_server::terrain_for(Some(&selection), args.seed, args.envs)?;
     let options = VecEnvOptions {
         num_envs: args.envs,
         seed: args.seed,
@@ -166,6 +256,9 @@ pub fn run(args: &BenchArgs) -> Result<BenchReport> {
         autoreset: true,
     };
     let mut env = VecEnv::new(model, config, terrain, options)?;
+    if args.no_joints {
+        env.remove_joints();
+    }
     let mut rng = ChaCha8Rng::seed_from_u64(args.seed);
     let n = args.envs * NUM_JOINTS;
     // A pool of action batches, drawn before timing so the RNG is not measured.
@@ -187,6 +280,7 @@ pub fn run(args: &BenchArgs) -> Result<BenchReport> {
     let mut extra_share = 0.0;
     let mut fall_resets = 0;
     let before = env.stage_times();
+    let counters_before = env.physics_counters();
     let start = Instant::now();
     for i in 0..args.steps {
         env.step(&pool[i % pool.len()])?;
@@ -199,6 +293,8 @@ pub fn run(args: &BenchArgs) -> Result<BenchReport> {
     let wall = start.elapsed().as_secs_f64();
     let after = env.stage_times();
     let (physics, task) = (after.physics - before.physics, after.task - before.task);
+    let counters = env.physics_counters().minus(&counters_before);
+    let per_step = |n: u64| n as f64 / counters.robot_steps.max(1) as f64;
     let env_steps = (args.envs * args.steps) as f64 / wall;
     Ok(BenchReport {
         env_steps_per_sec: env_steps,
@@ -221,6 +317,11 @@ pub fn run(args: &BenchArgs) -> Result<BenchReport> {
             1.0
         },
         wall_s: wall,
+        no_joints: args.no_joints,
+        us_per_robot_step: StageMicros::per_robot_step(&counters, physics, wall * threads as f64),
+        contacts_per_robot_step: per_step(counters.contacts),
+        contact_pairs_per_robot_step: per_step(counters.contact_pairs),
+        constraints_per_robot_step: per_step(counters.constraints),
     })
 }
 
@@ -239,6 +340,7 @@ mod tests {
             level: 0,
             seed: 3,
             reference_loop: true,
+            no_joints: false,
             overrides,
             json: true,
         }
@@ -250,6 +352,40 @@ mod tests {
         assert!(report.reference_loop);
         assert_eq!(report.fall_resets, 0);
         assert_eq!(report.extra_iteration_share, 0.0);
+    }
+
+    #[test]
+    fn standing_robots_have_eight_contacts_and_twelve_joints() {
+        let report = run(&reference_args(BenchActions::Stand, vec![])).expect("bench");
+        // One point per manifold on the plane: the 4 feet, and the 4 lower shin capsules
+        // (`*_calflower1`), about 18 mm above the ground at the default pose, inside rapier's
+        // 20 mm contact prediction distance. The solver adds the 12 joints to those 8.
+        assert_eq!(report.contacts_per_robot_step, 8.0);
+        assert_eq!(report.constraints_per_robot_step, 20.0);
+        let us = &report.us_per_robot_step;
+        // Rapier's stages lie inside its step, and its step inside ours.
+        assert!(us.rapier_other >= 0.0, "{us:?}");
+        assert!(
+            us.step >= us.torques + us.pipeline + us.after - 1e-9,
+            "{us:?}"
+        );
+        assert!(us.collision_detection >= us.broad_phase + us.narrow_phase - 1e-9);
+        assert!(us.solver >= us.assembly + us.resolution - 1e-9);
+        assert!(us.physics_stage >= us.step + us.read_back - 1e-9);
+    }
+
+    #[test]
+    fn without_joints_the_solver_sees_only_contacts() {
+        let mut args = reference_args(BenchActions::Stand, vec![]);
+        args.no_joints = true;
+        let report = run(&args).expect("bench");
+        assert!(report.no_joints);
+        // Free bodies: every constraint is a contact manifold, none a joint (with joints there
+        // are 12 more than the manifolds, as above). The legs fall apart, so the trunks fall
+        // and robots are put back: more than one contact a manifold is possible, not fewer.
+        assert!(report.constraints_per_robot_step > 0.0);
+        assert!(report.contacts_per_robot_step >= report.constraints_per_robot_step);
+        assert!(report.fall_resets > 0);
     }
 
     #[test]

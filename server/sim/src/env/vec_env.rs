@@ -5,7 +5,7 @@ use std::sync::Arc;
 use rayon::prelude::*;
 
 use crate::error::SimError;
-use crate::physics::RobotState;
+use crate::physics::{PhysicsCounters, RobotState};
 use crate::robot::{NUM_JOINTS, RobotModel};
 use crate::task::{TaskConfig, TaskContext, TaskMode};
 use crate::terrain::Terrain;
@@ -390,6 +390,24 @@ impl VecEnv {
                 physics: acc.physics + g.times.physics,
                 task: acc.task + g.times.task,
             })
+    }
+
+    /// The physics worlds' time by stage, summed over worlds since creation.
+    pub fn physics_counters(&self) -> PhysicsCounters {
+        self.groups
+            .iter()
+            .fold(PhysicsCounters::default(), |acc, g| {
+                acc.plus(g.world().counters())
+            })
+    }
+
+    /// Remove every robot's joints (benchmark hook: rapier's pipeline without the joint
+    /// solver; the robots fall apart into 13 free bodies each).
+    #[doc(hidden)]
+    pub fn remove_joints(&mut self) {
+        for g in &mut self.groups {
+            g.world_mut().remove_joints();
+        }
     }
 
     /// Envs reset because their physics went non-finite, since creation.

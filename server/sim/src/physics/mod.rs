@@ -2,6 +2,7 @@
 
 mod actuation;
 pub mod articulated;
+mod counters;
 mod inertia;
 mod joint_state;
 mod params;
@@ -9,6 +10,7 @@ mod robot_state;
 mod world;
 
 pub use actuation::{ActuatorParams, FRICTION_RAMP_SPEED, passive_torque, pd_torque};
+pub use counters::PhysicsCounters;
 pub use joint_state::{joint_angle, joint_speed};
 pub use params::PhysicsParams;
 pub use robot_state::RobotState;

@@ -6,11 +6,14 @@
 //! 0.42x of their speed even with one substep (docs/src/decisions/0001-impulse-joints.md).
 //! Their anchors drift a little under load, which [`RobotWorld::max_joint_gap`] reports.
 
+use std::time::Instant;
+
 use rapier3d::prelude::*;
 
 use crate::robot::{ColliderRole, NUM_JOINTS, RobotModel, Shape};
 
 use super::actuation::{ActuatorParams, passive_torque, pd_torque};
+use super::counters::PhysicsCounters;
 use super::inertia::mass_properties;
 use super::joint_state::{joint_angle, joint_speed};
 use super::params::PhysicsParams;
@@ -104,6 +107,8 @@ pub struct RobotWorld {
     /// Scratch: world poses and velocities of one robot's bodies.
     scratch_rot: Vec<Rotation>,
     scratch_angvel: Vec<Vec3>,
+    /// Time by stage, summed over steps (the benchmark's breakdown).
+    counters: PhysicsCounters,
 }
 
 impl RobotWorld {
@@ -146,6 +151,7 @@ impl RobotWorld {
             robots: Vec::with_capacity(count),
             scratch_rot: vec![Rotation::IDENTITY; model.bodies.len()],
             scratch_angvel: vec![Vec3::ZERO; model.bodies.len()],
+            counters: PhysicsCounters::default(),
         };
         world.colliders.insert(
             terrain
@@ -302,6 +308,7 @@ impl RobotWorld {
         actuators: &[ActuatorParams],
         torques: &mut [f32],
     ) {
+        let t0 = Instant::now();
         for (slot, robot) in self.robots.iter().enumerate() {
             for (b, &h) in robot.bodies.iter().enumerate() {
                 let rb = &mut self.bodies[h];
@@ -330,6 +337,7 @@ impl RobotWorld {
                 self.bodies[robot.bodies[p]].add_torque(-axis, false);
             }
         }
+        let t1 = Instant::now();
         self.pipeline.step(
             self.gravity,
             &self.integration,
@@ -345,6 +353,7 @@ impl RobotWorld {
             &(),
             &(),
         );
+        let t2 = Instant::now();
         // Rapier disables bodies whose state turned non-finite; the env layer resets the robot.
         for &h in self.pipeline.quarantine().bodies() {
             if let Some(f) = self
@@ -358,6 +367,29 @@ impl RobotWorld {
         self.update_leg_contact();
         for slot in 0..self.robots.len() {
             self.update_extra_iterations(slot);
+        }
+        let t3 = Instant::now();
+        let c = &mut self.counters;
+        c.add_rapier(&self.pipeline.counters);
+        c.world_steps += 1;
+        c.robot_steps += self.robots.len() as u64;
+        c.torques_s += (t1 - t0).as_secs_f64();
+        c.after_s += (t3 - t2).as_secs_f64();
+        c.step_s += (t3 - t0).as_secs_f64();
+    }
+
+    /// Time by stage summed over this world's steps since it was built.
+    pub fn counters(&self) -> &PhysicsCounters {
+        &self.counters
+    }
+
+    /// Remove every robot's joints, leaving 13 free bodies a robot (benchmark hook: the cost
+    /// of rapier's pipeline without the joint solver; the robots fall apart).
+    #[doc(hidden)]
+    pub fn remove_joints(&mut self) {
+        let joints: Vec<_> = self.impulse_joints.iter().map(|(h, _)| h).collect();
+        for h in joints {
+            self.impulse_joints.remove(h, true);
         }
     }
 
@@ -464,6 +496,7 @@ impl RobotWorld {
     /// Read every robot's state into `out` (one entry per slot), including the contact forces of
     /// the last physics step.
     pub fn read_states(&mut self, model: &RobotModel, out: &mut [RobotState]) {
+        let t0 = Instant::now();
         for (slot, s) in out.iter_mut().enumerate().take(self.robots.len()) {
             self.read_kinematics(model, slot, s);
             s.clear_contacts();
@@ -500,6 +533,7 @@ impl RobotWorld {
             self.update_extra_iterations(slot);
             s.extra_iterations = self.extra_iterations[slot];
         }
+        self.counters.read_back_s += t0.elapsed().as_secs_f64();
     }
 
     /// Overwrite the linear velocity of robot `slot`'s trunk (used by pushes), keeping the other
