@@ -26,4 +26,6 @@ pub use error::PolicyError;
 pub use history::ObsHistory;
 pub use onnx::{InputLayout, OnnxPolicy};
 pub use policy::{ConstantPolicy, Policy, PolicySpec};
-pub use sandbox::{SandboxLimits, SandboxedPolicy, WORKER_SUBCOMMAND, run_worker};
+pub use sandbox::{
+    SECCOMP_SELF_TEST_ARG, SandboxLimits, SandboxedPolicy, WORKER_SUBCOMMAND, run_worker,
+};

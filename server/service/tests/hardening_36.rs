@@ -268,6 +268,71 @@ fn issue_36_the_policy_worker_runs_confined() {
     }
 }
 
+/// The policy worker runs under a seccomp filter installed before it decodes the model: its
+/// status says so, a real policy still loads and acts (the same actions as in process, at batch
+/// 1 and at a batch large enough for tract's cache-blocked kernels), and a forbidden call (open
+/// a file, made by the worker's test-only argument) kills it with SIGSYS, reported as a crash.
+#[test]
+fn issue_36_the_policy_worker_runs_under_a_seccomp_filter() {
+    use unigait_policy::{
+        OnnxPolicy, Policy, PolicyError, PolicySpec, SECCOMP_SELF_TEST_ARG, SandboxLimits,
+        SandboxedPolicy,
+    };
+    let exe = std::path::Path::new(env!("CARGO_BIN_EXE_unigait-server"));
+    let spec = PolicySpec::default();
+    let policy = SandboxedPolicy::spawn(exe, &test_policy(), spec, SandboxLimits::default())
+        .expect("the test policy loads under the filter");
+    let status = std::fs::read_to_string(format!("/proc/{}/status", policy.worker_pid()))
+        .expect("worker status");
+    assert!(
+        status
+            .lines()
+            .any(|l| l.split_whitespace().eq(["Seccomp:", "2"])),
+        "the worker has no seccomp filter:\n{status}"
+    );
+    let local = OnnxPolicy::from_bytes(&test_policy(), spec).expect("in process");
+    for batch in [1, 3000] {
+        let history: Vec<f32> = (0..batch * spec.input_width())
+            .map(|i| ((i % 97) as f32 - 48.0) / 50.0)
+            .collect();
+        let mut sandboxed = vec![0.0; batch * spec.num_actions];
+        let mut expected = vec![0.0; batch * spec.num_actions];
+        policy
+            .act(&history, batch, &mut sandboxed)
+            .unwrap_or_else(|e| panic!("batch {batch} under the filter: {e}"));
+        local.act(&history, batch, &mut expected).expect("local");
+        assert_eq!(sandboxed, expected, "batch {batch}");
+        assert!(expected.iter().any(|&v| v != 0.0));
+    }
+
+    // The worker's test-only argument, through a wrapper (the server never passes it).
+    let dir = std::env::temp_dir().join(format!("unigait-36-seccomp-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    let wrapper = dir.join("worker.sh");
+    std::fs::write(
+        &wrapper,
+        format!(
+            "#!/bin/sh\nexec '{}' \"$1\" {SECCOMP_SELF_TEST_ARG}\n",
+            exe.display()
+        ),
+    )
+    .expect("write the wrapper");
+    Command::new("chmod")
+        .arg("+x")
+        .arg(&wrapper)
+        .status()
+        .expect("chmod");
+    let probe = SandboxedPolicy::spawn(&wrapper, &test_policy(), spec, SandboxLimits::default())
+        .expect("loads");
+    let history = vec![0.0; spec.input_width()];
+    let mut actions = vec![0.0; spec.num_actions];
+    match probe.act(&history, 1, &mut actions) {
+        Err(PolicyError::Crashed(m)) => assert!(m.contains("SIGSYS"), "{m}"),
+        other => panic!("the forbidden call went through: {other:?}"),
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 fn open_files_limit() -> usize {
     std::fs::read_to_string("/proc/self/limits")
         .ok()
