@@ -62,7 +62,7 @@ def _crosscheck(args: argparse.Namespace) -> int:
 def _bench(args: argparse.Namespace) -> int:
     from unigait.mujoco.bench import main
 
-    return main(args.envs, args.steps, args.solver)
+    return main(args.envs, args.steps, args.solver, Path(args.server) if args.server else None)
 
 
 def register(subparsers: Any) -> None:
@@ -107,5 +107,11 @@ def register(subparsers: Any) -> None:
         default=["default", "playground"],
         choices=["default", "playground"],
         help="solver settings: the cross-check model's, MuJoCo Playground's training settings",
+    )
+    b.add_argument(
+        "--server",
+        metavar="UNIGAIT_SERVER",
+        help="also run this unigait-server's bench (with and without joints) and print both "
+        "engines' stages side by side, in microseconds per robot physics step",
     )
     b.set_defaults(func=_bench)
