@@ -11,6 +11,7 @@ import copy
 import dataclasses
 import tomllib
 import typing
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -302,13 +303,29 @@ def load_config(path: str | Path | None = None, overrides: list[str] | None = No
     return apply(cfg, grouped)
 
 
-def session_config(cfg: TrainConfig) -> SessionConfig:
-    """The session a training run opens (reward terms on: the logger needs them)."""
+def session_config(cfg: TrainConfig, terrain_levels: Sequence[int] = ()) -> SessionConfig:
+    """The session a training run opens (reward terms on: the logger needs them).
+
+    ``terrain_levels``: each env's starting curriculum level (a resumed run's), or empty.
+    """
     return SessionConfig(
         num_envs=cfg.env.num_envs,
         seed=cfg.env.seed,
         task_overrides_toml=cfg.env.task_toml(),
         terrain=cfg.env.terrain,
         terrain_level=cfg.env.terrain_level,
+        terrain_levels=tuple(terrain_levels),
         reward_terms=True,
     )
+
+
+def resumed_terrain_levels(cfg: TrainConfig, checkpoint: dict[str, Any]) -> list[int]:
+    """The curriculum levels ``checkpoint``'s envs had reached, if this run can start there.
+
+    Only for a curriculum run with as many envs as the checkpoint's: env i keeps its column
+    (columns go by env index), so its level means the same tile again.
+    """
+    levels = [int(x) for x in checkpoint.get("terrain_levels", [])]
+    if cfg.env.terrain != "curriculum" or len(levels) != cfg.env.num_envs:
+        return []
+    return levels

@@ -423,7 +423,7 @@ impl Sessions {
         };
         let mut reservation = self.reserve(n)?;
         let (terrain, terrain_name) =
-            crate::terrain::terrain_for(config.terrain.as_ref(), config.seed)?;
+            crate::terrain::terrain_for(config.terrain.as_ref(), config.seed, n)?;
         let options = VecEnvOptions {
             num_envs: n,
             seed: config.seed,

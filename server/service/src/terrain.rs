@@ -10,13 +10,22 @@ use crate::error::ServiceError;
 /// Highest starting level of the curriculum when the config leaves it at 0 (legged_gym: 5).
 const DEFAULT_MAX_INIT_LEVEL: u32 = 5;
 
-/// The terrain a session asked for, with its display name. The grid is generated from the
-/// session seed, so sessions with the same config and seed see the same terrain.
+/// The terrain a session of `num_envs` asked for, with its display name. The grid is generated
+/// from the session seed, so sessions with the same config and seed see the same terrain.
 pub fn terrain_for(
     config: Option<&TerrainConfig>,
     seed: u64,
+    num_envs: usize,
 ) -> Result<(Arc<Terrain>, String), ServiceError> {
     let (kind, level) = config.map_or(("", 0), |c| (c.kind.as_str(), c.level));
+    let initial_levels = config.map_or(&[][..], |c| c.initial_levels.as_slice());
+    if !initial_levels.is_empty() && (kind != "curriculum" || initial_levels.len() != num_envs) {
+        return Err(ServiceError::InvalidArgument(format!(
+            "terrain.initial_levels: {} levels for a `{kind}` terrain of {num_envs} envs; they \
+             are for \"curriculum\", one per env",
+            initial_levels.len()
+        )));
+    }
     let spec_kind = match kind {
         "" | "flat" => return Ok((Arc::new(Terrain::Flat), "flat".into())),
         "curriculum" => TerrainKind::Curriculum {
@@ -44,7 +53,10 @@ pub fn terrain_for(
         kind: spec_kind,
         ..TerrainSpec::default()
     };
-    let terrain = Terrain::from_spec(&spec, seed)?;
+    let mut terrain = Terrain::from_spec(&spec, seed)?;
+    if !initial_levels.is_empty() {
+        terrain = terrain.with_initial_levels(initial_levels.to_vec())?;
+    }
     let name = if kind == "curriculum" {
         "curriculum".to_string()
     } else {

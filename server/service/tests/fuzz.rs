@@ -157,6 +157,9 @@ async fn issue_14_fuzz_every_rpc_bounded() {
                         kind: ["flat", "stairs_up", "curriculum", "bogus"][rng.random_range(0..4)]
                             .into(),
                         level: extreme_u32(&mut rng),
+                        initial_levels: (0..rng.random_range(0..3))
+                            .map(|_| extreme_u32(&mut rng))
+                            .collect(),
                     }),
                     autoreset: rng.random_range(-1..4),
                     reward_terms: rng.random(),

@@ -813,3 +813,53 @@ async fn issue_14_a_policy_over_its_time_limit_is_resource_exhausted() {
     assert!(status.message().contains("longer"), "{}", status.message());
     server.shutdown().await;
 }
+
+/// A session config with `terrain.initial_levels`.
+fn with_levels(n: u32, kind: &str, levels: Vec<u32>) -> v1::CreateSessionRequest {
+    let mut request = config(n, 3, "");
+    if let Some(c) = request.config.as_mut() {
+        c.terrain = Some(v1::TerrainConfig {
+            kind: kind.into(),
+            level: 1,
+            initial_levels: levels,
+        });
+    }
+    request
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_curriculum_session_starts_its_envs_on_the_levels_it_asks_for() {
+    let server = TestServer::with_limits(Limits::default()).await;
+    let mut c = server.client().await;
+    // Levels 4-9, all above the drawn range 0..=1: only the given levels put envs there.
+    let levels: Vec<u32> = (0..8).map(|i| 9 - i % 6).collect();
+    let created = c
+        .create_session(with_levels(8, "curriculum", levels.clone()))
+        .await
+        .expect("a curriculum session with one level per env")
+        .into_inner();
+    let initial = created.initial.expect("initial step");
+    let got = initial
+        .terrain_level
+        .expect("terrain levels")
+        .u32_values("terrain_level")
+        .expect("u32")
+        .into_owned();
+    assert_eq!(got, levels);
+    // A level off the grid, a count that is not one per env, a pinned terrain: refused.
+    for (kind, bad) in [
+        ("curriculum", vec![0, 1, 2, 3, 4, 5, 6, 10]),
+        ("curriculum", vec![0; 7]),
+        ("stairs_up", vec![0; 8]),
+        ("flat", vec![0; 8]),
+    ] {
+        let status = c
+            .create_session(with_levels(8, kind, bad.clone()))
+            .await
+            .expect_err("refused");
+        assert_eq!(status.code(), Code::InvalidArgument, "{kind} {bad:?}: {status}");
+        assert!(status.message().contains("initial_levels"), "{status}");
+    }
+    assert_eq!(active_sessions(&mut c).await.0, 1);
+    server.shutdown().await;
+}

@@ -168,7 +168,15 @@ class ShardedSession(ClosesOnExit):
 
     def _shard_config(self, i: int) -> SessionConfig:
         seed = self._config.seed + i + self._generation[i] * len(self._clients)
-        return dataclasses.replace(self._config, num_envs=self.counts[i], seed=seed)
+        # Each shard starts its own envs' levels; a shard that replaces a lost one starts afresh.
+        levels = self._config.terrain_levels
+        if levels and self._generation[i] == 0:
+            levels = levels[self.offsets[i] : self.offsets[i] + self.counts[i]]
+        else:
+            levels = ()
+        return dataclasses.replace(
+            self._config, num_envs=self.counts[i], seed=seed, terrain_levels=levels
+        )
 
     def _rows(self, array: np.ndarray, i: int) -> np.ndarray:
         return array[self.offsets[i] : self.offsets[i] + self.counts[i]]

@@ -24,6 +24,8 @@ class SessionConfig:
             ``"[modes]\\nbiped_probability = 0.0"``.
         terrain: ``"flat"``, ``"curriculum"`` or a pinned type (``"stairs_up"``, ...).
         terrain_level: Level of a pinned type, or the highest starting level for the curriculum.
+        terrain_levels: The curriculum only: each env's starting level (one per env), e.g. the
+            levels a resumed run had reached; empty: drawn from ``0..=terrain_level``.
         autoreset: ``"same_step"`` (default) or ``"disabled"``.
         reward_terms: Return the per-term rewards with every step.
     """
@@ -33,6 +35,7 @@ class SessionConfig:
     task_overrides_toml: str = ""
     terrain: str = "flat"
     terrain_level: int = 0
+    terrain_levels: tuple[int, ...] = ()
     autoreset: str = "same_step"
     reward_terms: bool = True
 
@@ -48,7 +51,9 @@ class SessionConfig:
             num_envs=self.num_envs,
             seed=self.seed,
             task_overrides_toml=self.task_overrides_toml,
-            terrain=pb.TerrainConfig(kind=self.terrain, level=self.terrain_level),
+            terrain=pb.TerrainConfig(
+                kind=self.terrain, level=self.terrain_level, initial_levels=self.terrain_levels
+            ),
             autoreset=modes[self.autoreset],
             reward_terms=self.reward_terms,
         )

@@ -117,6 +117,9 @@ class OnPolicyRunner:
         #: I_up's threshold at the end of the last rollout (None before one, or when the server
         #: does not report it); saved so that a resumed run's curriculum starts there.
         self.upright_pitch: float | None = None
+        #: Each env's terrain level at the end of the last rollout: saved so that a resumed
+        #: curriculum run starts its envs where they were rather than on levels 0-3 again.
+        self.terrain_levels: list[int] = []
         self.resumed = False
         #: The resumed checkpoint, and the task overrides and PPO settings it was trained with.
         self.resumed_from = ""
@@ -201,6 +204,7 @@ class OnPolicyRunner:
                 level += float(nxt.terrain_level.float().mean())
                 terrain.add(nxt.terrain_level, nxt.mode)
             step = nxt
+        self.terrain_levels = [int(x) for x in step.terrain_level.tolist()]
         with timers.time("inference"), torch.no_grad():
             last_values = ac.value(step.critic_obs)
             self.storage.compute_returns(
@@ -292,6 +296,7 @@ class OnPolicyRunner:
             "learning_rate": self.ppo.learning_rate,
             "stages": list(self.stages),
             "upright_pitch": self.upright_pitch,
+            "terrain_levels": self.terrain_levels,
             "config": self.cfg.to_dict(),
             "dims": self.dims,
             "provenance": dict(self.provenance),

@@ -19,7 +19,12 @@ from typing import Any
 import torch
 
 from unigait.client import Client, ConnectionOptions, open_session
-from unigait.config import TrainConfig, resume_upright_curriculum, session_config
+from unigait.config import (
+    TrainConfig,
+    resume_upright_curriculum,
+    resumed_terrain_levels,
+    session_config,
+)
 from unigait.env import TorchVecEnv
 from unigait.milestones import milestone as load_milestone
 from unigait.provenance import git_commit
@@ -151,13 +156,21 @@ def run_stage(
     stage_dir.mkdir(parents=True, exist_ok=True)
     source = latest if resuming else _start_checkpoint(stage, previous_final)
     cfg: TrainConfig = stage_config(stage, stage_dir)
+    terrain_levels: list[int] = []
     if source is not None:
         checkpoint = torch.load(source, map_location="cpu", weights_only=False)
         cfg = resume_upright_curriculum(cfg, checkpoint)
+        terrain_levels = resumed_terrain_levels(cfg, checkpoint)
     torch.manual_seed(cfg.runner.seed)
     if cfg.runner.torch_threads > 0:
         torch.set_num_threads(cfg.runner.torch_threads)
-    session = open_session(list(addresses), session_config(cfg), **connection)
+    session = open_session(list(addresses), session_config(cfg, terrain_levels), **connection)
+    if terrain_levels:
+        mean = sum(terrain_levels) / len(terrain_levels)
+        log(
+            f"stage {stage.dir_name}: envs start on the terrain levels of {source} "
+            f"(mean {mean:.2f})"
+        )
     env = TorchVecEnv(session, cfg.runner.device)
     try:
         runner = OnPolicyRunner(env, cfg, stage_dir)

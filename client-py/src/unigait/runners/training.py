@@ -14,7 +14,12 @@ from pathlib import Path
 import torch
 
 from unigait.client import SessionConfig, SessionLike
-from unigait.config import TrainConfig, resume_upright_curriculum, session_config
+from unigait.config import (
+    TrainConfig,
+    resume_upright_curriculum,
+    resumed_terrain_levels,
+    session_config,
+)
 from unigait.env import TorchVecEnv
 from unigait.provenance import git_commit
 from unigait.runners.on_policy_runner import OnPolicyRunner
@@ -49,18 +54,24 @@ def train(
         CheckpointMismatchError: ``resume`` or ``init_from`` holds other networks.
     """
     source = resume or init_from
+    terrain_levels: list[int] = []
     if source:
         # A stage started from an upright policy (terrain after flat, say) keeps its threshold
-        # too, rather than paying I_up from 1.0 rad again while the curriculum climbs back.
+        # too, rather than paying I_up from 1.0 rad again while the curriculum climbs back;
+        # and its envs start on the terrain levels they had reached.
         checkpoint = torch.load(source, map_location="cpu", weights_only=False)
         cfg = resume_upright_curriculum(cfg, checkpoint)
+        terrain_levels = resumed_terrain_levels(cfg, checkpoint)
     torch.manual_seed(cfg.runner.seed)
     if cfg.runner.torch_threads > 0:
         torch.set_num_threads(cfg.runner.torch_threads)
     log_dir = Path(cfg.runner.log_dir)
     log_dir.mkdir(parents=True, exist_ok=True)
     (log_dir / "config.toml").write_text(cfg.to_toml())
-    env = TorchVecEnv(open_session(session_config(cfg)), cfg.runner.device)
+    env = TorchVecEnv(open_session(session_config(cfg, terrain_levels)), cfg.runner.device)
+    if terrain_levels:
+        mean = sum(terrain_levels) / len(terrain_levels)
+        print(f"envs start on the terrain levels of {source} (mean {mean:.2f})")
     try:
         runner = runner_class(env, cfg, log_dir)
         if resume:

@@ -28,6 +28,9 @@ pub struct TerrainGrid {
     /// The collider's shape (shared, never copied) and pose.
     shape: SharedShape,
     pose: Pose,
+    /// A curriculum's starting level of each env by index (a resumed run's levels); empty: the
+    /// level is drawn from `0..=max_init_level`.
+    initial_levels: Vec<u32>,
 }
 
 impl std::fmt::Debug for TerrainGrid {
@@ -66,6 +69,7 @@ impl TerrainGrid {
             origin_heights: Vec::new(),
             shape,
             pose,
+            initial_levels: Vec::new(),
         };
         grid.origin_heights = (0..spec.num_levels)
             .flat_map(|level| (0..spec.types.len() as u32).map(move |column| (level, column)))
@@ -143,9 +147,36 @@ impl TerrainGrid {
             .max_height_in_square(cx - h, cy - h, cx + h, cy + h)
     }
 
+    /// Start env i of a curriculum at `levels[i]` rather than at a drawn level: a resumed run
+    /// carries its envs' levels over instead of climbing back from `0..=max_init_level`.
+    /// Refused for a kind other than a curriculum and for a level off the grid.
+    pub fn set_initial_levels(&mut self, levels: Vec<u32>) -> Result<(), SimError> {
+        if !matches!(self.spec.kind, TerrainKind::Curriculum { .. }) {
+            return Err(SimError::invalid(
+                "terrain.initial_levels",
+                format!("{} levels", levels.len()),
+                "only for the curriculum",
+            ));
+        }
+        if let Some((i, level)) = levels
+            .iter()
+            .enumerate()
+            .find(|(_, l)| **l >= self.num_levels())
+        {
+            return Err(SimError::invalid(
+                format!("terrain.initial_levels[{i}]"),
+                level,
+                format!("0..{}", self.num_levels()),
+            ));
+        }
+        self.initial_levels = levels;
+        Ok(())
+    }
+
     /// The starting tile (level, column) of env `env_index` of `num_envs`: columns by env
     /// index as legged_gym (`column = index * columns / num_envs`), the level uniform in
-    /// `0..=max_init_level` for a curriculum, the pinned tile for a pinned kind, (0, 0) for flat.
+    /// `0..=max_init_level` for a curriculum (or the env's entry of
+    /// [`TerrainGrid::set_initial_levels`]), the pinned tile for a pinned kind, (0, 0) for flat.
     pub fn initial_tile(
         &self,
         env_index: usize,
@@ -155,7 +186,10 @@ impl TerrainGrid {
         match self.spec.kind {
             TerrainKind::Flat => (0, 0),
             TerrainKind::Curriculum { max_init_level } => {
-                let level = rng.random_range(0..=max_init_level.min(self.num_levels() - 1));
+                let level = match self.initial_levels.get(env_index) {
+                    Some(&level) => level,
+                    None => rng.random_range(0..=max_init_level.min(self.num_levels() - 1)),
+                };
                 (
                     level,
                     initial_column(env_index, num_envs, self.num_columns()),

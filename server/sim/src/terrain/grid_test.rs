@@ -108,3 +108,24 @@ fn grids_compare_by_spec_and_seed() {
     assert_ne!(a, c);
     assert!(format!("{a:?}").contains("TerrainGrid"));
 }
+
+#[test]
+fn a_resumed_curriculum_starts_its_envs_on_the_levels_it_is_given() {
+    let mut g = grid(TerrainKind::Curriculum { max_init_level: 1 });
+    // Levels far above max_init_level: only the given levels can put envs there.
+    let levels: Vec<u32> = (0..40).map(|i| 9 - (i % 4)).collect();
+    g.set_initial_levels(levels.clone()).expect("levels on the grid");
+    let mut rng = ChaCha8Rng::seed_from_u64(0);
+    for (i, level) in levels.iter().enumerate() {
+        assert_eq!(g.initial_tile(i, 40, &mut rng), (*level, (i / 2) as u32));
+    }
+    // An env past the list draws as before.
+    assert!(g.initial_tile(45, 50, &mut rng).0 <= 1);
+    // Levels off the grid and non-curriculum grids are refused.
+    assert!(g.set_initial_levels(vec![0, 10]).is_err());
+    let mut pinned = grid(TerrainKind::Pinned {
+        terrain_type: TerrainType::StairsUp,
+        level: 2,
+    });
+    assert!(pinned.set_initial_levels(vec![3]).is_err());
+}

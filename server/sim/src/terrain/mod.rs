@@ -52,6 +52,29 @@ impl Terrain {
         }
     }
 
+    /// This terrain with env i of its curriculum starting at `levels[i]` (see
+    /// [`TerrainGrid::set_initial_levels`]); refused on flat ground and on a grid already shared.
+    pub fn with_initial_levels(mut self, levels: Vec<u32>) -> Result<Terrain, SimError> {
+        match &mut self {
+            Terrain::Flat => Err(SimError::invalid(
+                "terrain.initial_levels",
+                format!("{} levels", levels.len()),
+                "only for the curriculum",
+            )),
+            Terrain::Grid(g) => match Arc::get_mut(g) {
+                Some(grid) => {
+                    grid.set_initial_levels(levels)?;
+                    Ok(self)
+                }
+                None => Err(SimError::invalid(
+                    "terrain.initial_levels",
+                    "a shared grid",
+                    "a grid of its own",
+                )),
+            },
+        }
+    }
+
     /// The grid, if this terrain is one.
     pub fn grid(&self) -> Option<&TerrainGrid> {
         match self {
