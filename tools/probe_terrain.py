@@ -1,0 +1,173 @@
+r"""Where does a checkpoint stop on a terrain? Progress and reward terms per pinned tile level.
+
+Every env sits on one pinned tile (``--terrain stairs_up``, level by level), in one mode for the
+whole episode with one fixed command, noise-free, as in ``probe_biped_walk.py``. Per level the
+probe reports the distance walked along the heading (the velocity label integrated in the
+heading frame: the distance the curriculum's promotion counts), the share of envs that made the
+curriculum's promotion distance (0.7 of the commanded distance, 2 m at least) and its demotion
+line (0.5), the share that fell, and the reward terms whose per-step mean differs most from the
+same policy on flat ground (where the terrain costs it reward, and what it is paid for), e.g.::
+
+    UNIGAIT_SERVER_BIN=target/release/unigait-server .venv/bin/python tools/probe_terrain.py \
+        assets/training/unified_terrain/01_terrain/model_latest.pt --terrain stairs_up \
+        --levels 0 1 2 3 --mode quad --vx 0.5
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import torch
+from probe_biped_walk import ObsFields, heading_frame, in_heading_frame
+from unigait.client import SessionConfig, open_session
+from unigait.env import ObservationHistory, TorchVecEnv
+from unigait.export import load_policy
+from unigait.server_process import LocalServer
+
+DT = 0.02
+PROMOTE, DEMOTE = (
+    0.7,
+    0.5,
+)  # the curriculum's shares of the commanded distance (decision 0022)
+MIN_PROMOTE_M = 2.0
+
+
+def overrides(mode: str, vx: float, episode_s: float) -> str:
+    """One mode, one forward command for the whole episode, noise-free observations."""
+    p = 1.0 if mode == "biped" else 0.0
+    return (
+        f"[modes]\nbiped_probability = {p}\nresampling_time_s = 600.0\n"
+        f"[env]\nrandom_initial_episode_step = false\nepisode_length_s = {episode_s}\n"
+        "[noise]\nenabled = false\n"
+        "[commands]\nresampling_time_s = 600.0\nzero_below = 0.0\n"
+        f"{mode} = {{ vx = [{vx}, {vx}], vy = [0.0, 0.0], wz = [0.0, 0.0] }}\n"
+    )
+
+
+class Rollout:
+    """One session's episode: distance along the heading per env, falls, reward per term."""
+
+    def __init__(
+        self,
+        distance: torch.Tensor,
+        fell: torch.Tensor,
+        terms: torch.Tensor,
+        apex: torch.Tensor,
+    ) -> None:
+        self.distance, self.fell, self.terms = distance, fell, terms
+        self.apex = (
+            apex  # [4] the 90th percentile of each foot sole's height over the terrain
+        )
+
+
+def rollout(
+    server: LocalServer,
+    checkpoint: str,
+    terrain: str,
+    level: int,
+    mode: str,
+    vx: float,
+    envs: int,
+    steps: int,
+    seed: int,
+) -> tuple[Rollout, tuple[str, ...]]:
+    """Run ``steps`` policy steps (no env survives past its first episode in the counts)."""
+    policy, dims = load_policy(checkpoint)
+    config = SessionConfig(
+        num_envs=envs,
+        seed=seed,
+        task_overrides_toml=overrides(mode, vx, steps * DT + 1.0),
+        terrain=terrain,
+        terrain_level=level,
+    )
+    env = TorchVecEnv(open_session(server.address, config), "cpu")
+    at = ObsFields(env.spec)
+    history = ObservationHistory(envs, 3, dims["obs_dim"], torch.device("cpu"))
+    history.reset(env.last.obs)
+    alive = torch.ones(envs, dtype=torch.bool)
+    distance = torch.zeros(envs)
+    terms = torch.zeros(len(env.spec.reward_terms))
+    counted = 0
+    foot_height = env.spec.labels.slice("foot_height")
+    heights = []
+    for _ in range(steps):
+        with torch.no_grad():
+            actions = policy(history.flat.view(envs, 3, -1))
+        out = env.step(actions)
+        history.push(out.obs, out.dones)
+        frame = heading_frame(out.obs, at)
+        forward = in_heading_frame(frame, out.labels[:, at.velocity])[:, 0]
+        distance += torch.where(alive, forward * DT, 0.0)
+        if out.reward_terms is not None and alive.any():
+            terms += out.reward_terms[alive].sum(0)
+            counted += int(alive.sum())
+        heights.append(out.labels[alive, foot_height])
+        alive &= ~out.dones
+    env.close()
+    fell = ~alive
+    apex = torch.cat(heights).quantile(0.9, dim=0)
+    return Rollout(distance, fell, terms / max(counted, 1), apex), env.spec.reward_terms
+
+
+def main() -> None:
+    """Parse the command line and print one block per level."""
+    p = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawTextHelpFormatter
+    )
+    p.add_argument("checkpoint", help="model_*.pt")
+    p.add_argument("--terrain", default="stairs_up")
+    p.add_argument("--levels", type=int, nargs="+", default=[0, 1, 2, 3])
+    p.add_argument("--mode", choices=["quad", "biped"], default="quad")
+    p.add_argument("--vx", type=float, default=0.5, help="forward command (m/s)")
+    p.add_argument("--envs", type=int, default=32)
+    p.add_argument(
+        "--steps", type=int, default=600, help="policy steps (50 per second)"
+    )
+    p.add_argument("--seed", type=int, default=5)
+    p.add_argument("--terms", type=int, default=6, help="reward terms listed per level")
+    a = p.parse_args()
+    commanded = abs(a.vx) * a.steps * DT
+    promote_m = max(PROMOTE * commanded, MIN_PROMOTE_M)
+    with LocalServer() as server:
+        flat, names = rollout(
+            server, a.checkpoint, "flat", 0, a.mode, a.vx, a.envs, a.steps, a.seed
+        )
+        print(
+            f"flat: walked {flat.distance.mean():+.2f} m of {commanded:.1f} commanded, "
+            f"fell {flat.fell.float().mean():.2f}, feet's 90th percentile height "
+            + "/".join(f"{h:.3f}" for h in flat.apex.tolist()),
+            flush=True,
+        )
+        for level in a.levels:
+            r, _ = rollout(
+                server,
+                a.checkpoint,
+                a.terrain,
+                level,
+                a.mode,
+                a.vx,
+                a.envs,
+                a.steps,
+                a.seed,
+            )
+            walked = r.distance * (1.0 if a.vx >= 0 else -1.0)
+            delta = r.terms - flat.terms
+            worst = delta.abs().argsort(descending=True)[: a.terms]
+            listed = ", ".join(
+                f"{names[i]} {r.terms[i]:+.4f} ({delta[i]:+.4f})"
+                for i in worst.tolist()
+            )
+            print(
+                f"{a.terrain} level {level}: walked {walked.mean():+.2f} m "
+                f"(quartiles {walked.quantile(0.25):+.2f} / {walked.median():+.2f} / "
+                f"{walked.quantile(0.75):+.2f}), promoted {(walked > promote_m).float().mean():.2f}, "
+                f"demoted {(walked < DEMOTE * commanded).float().mean():.2f}, "
+                f"fell {r.fell.float().mean():.2f}, feet's 90th percentile height "
+                + "/".join(f"{h:.3f}" for h in r.apex.tolist())
+                + f"; per step (vs flat): {listed}",
+                flush=True,
+            )
+
+
+if __name__ == "__main__":
+    main()
