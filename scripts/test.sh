@@ -14,6 +14,11 @@ mdbook build docs
 python3 scripts/check_links.py
 echo "== cargo build (release)"
 cargo build --release --workspace --all-targets --locked
+echo "== the Rust client builds without the simulator (no rapier in its dependency tree)"
+if cargo tree -p unigait-client -e normal --locked | grep -E 'rapier|unigait-sim'; then
+  echo "unigait-client depends on the simulator: replaying a recording needs unigait-rrd only" >&2
+  exit 1
+fi
 echo "== cargo test (release)"
 cargo test --release --workspace --locked
 echo "== cargo clippy (-D warnings)"
@@ -27,7 +32,9 @@ if [ -f client-py/pyproject.toml ]; then
   echo "== mypy"
   (cd client-py && "$VENV/bin/mypy" src/unigait)
   echo "== pytest"
-  UNIGAIT_SERVER_BIN="$PWD/target/release/unigait-server" "$VENV/bin/pytest" -q client-py/tests tests
+  UNIGAIT_SERVER_BIN="$PWD/target/release/unigait-server" \
+    UNIGAIT_CROSSCHECK_BIN="$PWD/target/release/unigait-crosscheck" \
+    "$VENV/bin/pytest" -q client-py/tests tests
   echo "== pytest against a non-editable install (the package carries its data files)"
   # The venv's install is editable (it reads the checkout); a user's wheel carries only what the
   # build copies. Build client-py from a clean copy (stale build/ or egg-info files would mask an

@@ -1,7 +1,9 @@
 """End-to-end fixtures: the real ``unigait-server`` binary as a child process.
 
-The binary comes from ``$UNIGAIT_SERVER_BIN`` (default ``target/release/unigait-server``); the
-tests skip, saying so, only when it does not exist (scripts/test.sh always builds it first).
+The binary comes from ``$UNIGAIT_SERVER_BIN`` (default ``target/release/unigait-server``), the
+MuJoCo cross-checks' driver from ``$UNIGAIT_CROSSCHECK_BIN`` (default
+``target/release/unigait-crosscheck``); the tests skip, saying so, only when one does not exist
+(scripts/test.sh always builds both first).
 """
 
 from __future__ import annotations
@@ -28,6 +30,18 @@ def server_bin() -> Path:
         pytest.skip(
             f"unigait server binary not found at {path}: build it with "
             "`cargo build --release` or set UNIGAIT_SERVER_BIN"
+        )
+    return path
+
+
+@pytest.fixture(scope="session")
+def crosscheck_bin() -> Path:
+    env = os.environ.get("UNIGAIT_CROSSCHECK_BIN")
+    path = Path(env) if env else REPO / "target" / "release" / "unigait-crosscheck"
+    if not path.is_file():
+        pytest.skip(
+            f"cross-check driver not found at {path}: build it with "
+            "`cargo build --release -p unigait-crosscheck` or set UNIGAIT_CROSSCHECK_BIN"
         )
     return path
 

@@ -1,7 +1,8 @@
 """Physics cross-checks: our rapier Go2 against MuJoCo running the same URDF (issue 13).
 
-Ours: ``target/release/examples/crosscheck`` (build it with ``cargo build --release -p
-unigait-sim --examples``; these tests skip, saying so, only when it is missing). MuJoCo:
+Ours: ``target/release/unigait-crosscheck`` or ``$UNIGAIT_CROSSCHECK_BIN`` (build it with
+``cargo build --release -p unigait-crosscheck``; these tests skip, saying so, only when it is
+missing). MuJoCo:
 ``unigait.mujoco.scenarios`` in-process. Both run the same initial states and target sequences
 (each scenario's ``params`` must agree) and every figure is compared with the tolerance written
 in :data:`CHECKS`: ``abs`` bounds |ours - MuJoCo| in the figure's unit, ``rel`` bounds
@@ -42,6 +43,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -50,7 +52,7 @@ import pytest
 pytest.importorskip("mujoco", reason="the MuJoCo tests need the `mujoco` extra")
 
 from unigait.mujoco import scenarios
-from unigait.mujoco.crosscheck import find_crosscheck_binary, run_ours
+from unigait.mujoco.crosscheck import run_ours
 from unigait.mujoco.model import PhysicsOptions
 
 
@@ -218,7 +220,7 @@ def _value(result: dict[str, Any], quantity: str) -> float:
 
 
 def _results(
-    armature: float | None = None, on_links: bool = False
+    binary: Path, armature: float | None = None, on_links: bool = False
 ) -> tuple[dict[str, Any], dict[str, Any]]:
     """Ours and MuJoCo's figures; ``on_links``: MuJoCo carries the armature as we do."""
     names = list(scenarios.SCENARIOS)
@@ -226,35 +228,24 @@ def _results(
     if armature is not None:
         options = dataclasses.replace(options, armature=armature)
     return (
-        run_ours(find_crosscheck_binary(), names, armature),
+        run_ours(binary, names, armature),
         scenarios.run(names, options),
     )
 
 
-def _need_binary() -> None:
-    binary = find_crosscheck_binary()
-    if not binary.is_file():
-        pytest.skip(
-            f"{binary} not found: build it with `cargo build --release -p unigait-sim --examples`"
-        )
+@pytest.fixture(scope="module")
+def results(crosscheck_bin: Path) -> tuple[dict[str, Any], dict[str, Any]]:
+    return _results(crosscheck_bin)
 
 
 @pytest.fixture(scope="module")
-def results() -> tuple[dict[str, Any], dict[str, Any]]:
-    _need_binary()
-    return _results()
+def results_link_armature(crosscheck_bin: Path) -> tuple[dict[str, Any], dict[str, Any]]:
+    return _results(crosscheck_bin, on_links=True)
 
 
 @pytest.fixture(scope="module")
-def results_link_armature() -> tuple[dict[str, Any], dict[str, Any]]:
-    _need_binary()
-    return _results(on_links=True)
-
-
-@pytest.fixture(scope="module")
-def results_low_armature() -> tuple[dict[str, Any], dict[str, Any]]:
-    _need_binary()
-    return _results(LOW_ARMATURE, on_links=True)
+def results_low_armature(crosscheck_bin: Path) -> tuple[dict[str, Any], dict[str, Any]]:
+    return _results(crosscheck_bin, LOW_ARMATURE, on_links=True)
 
 
 def _cases(exceptions: dict[tuple[str, str], str]) -> list[Any]:
@@ -329,15 +320,15 @@ def _verdict(check: Check, error: float, exceptions: dict[tuple[str, str], str])
     return "pass" if ok else "FAIL"
 
 
-def table(armature: float | None = None) -> str:
+def table(binary: Path, armature: float | None = None) -> str:
     """The cross-check table in Markdown.
 
     Ours against MuJoCo with its own (joint) armature and with the armature on the links as
     ours: values, ratios, the tolerance and pass / xfail (an expected failure of the tests) /
     FAIL / XPASS (an expected failure that passed).
     """
-    ours, joint = _results(armature)
-    _, link = _results(armature, on_links=True)
+    ours, joint = _results(binary, armature)
+    _, link = _results(binary, armature, on_links=True)
     joint_exc = ARMATURE_MODEL_EXCEPTIONS if armature is None else {}
     link_exc = LINK_ARMATURE_EXCEPTIONS if armature is None else LOW_ARMATURE_EXCEPTIONS
     lines = [
@@ -361,6 +352,9 @@ def table(armature: float | None = None) -> str:
 
 
 if __name__ == "__main__":
+    import os
     import sys
 
-    print(table(float(sys.argv[1]) if len(sys.argv) > 1 else None))
+    default = Path(__file__).resolve().parents[1] / "target" / "release" / "unigait-crosscheck"
+    driver = Path(os.environ.get("UNIGAIT_CROSSCHECK_BIN", default))
+    print(table(driver, float(sys.argv[1]) if len(sys.argv) > 1 else None))

@@ -1,7 +1,7 @@
 """sim2sim: the observation MuJoCo rollouts feed a policy equals the server's, slice by slice.
 
-The server's side comes from the sim crate's example binary (``target/release/examples/
-crosscheck observations task``): states of a calm ``VecEnv`` (Table IV initial states, random
+The server's side comes from the cross-check driver (``target/release/unigait-crosscheck
+observations task``): states of a calm ``VecEnv`` (Table IV initial states, random
 initial episode steps, pseudo-random actions, no randomisation, no noise) with the o_t the env
 wrote for each. Each state is loaded into the MuJoCo env sim2sim runs and observed there; every
 slice must agree to 1e-5. The shipped test policy then runs through ``python -m unigait sim2sim``.
@@ -22,7 +22,7 @@ pytest.importorskip("onnxruntime", reason="sim2sim needs onnxruntime (the `mujoc
 from unigait.cli import main
 from unigait.mujoco import cli as mujoco_cli
 from unigait.mujoco import sim2sim
-from unigait.mujoco.crosscheck import find_crosscheck_binary, run_ours
+from unigait.mujoco.crosscheck import run_ours
 from unigait.mujoco.model import DEFAULT_Q, build_model
 from unigait.mujoco.observation import (
     OBS_DIM,
@@ -39,13 +39,8 @@ OBS_TOLERANCE = 1e-5
 
 
 @pytest.fixture(scope="module")
-def server_side() -> dict:
-    binary = find_crosscheck_binary()
-    if not binary.is_file():
-        pytest.skip(
-            f"{binary} not found: build it with `cargo build --release -p unigait-sim --examples`"
-        )
-    return run_ours(binary, ["observations", "task", "robot"])
+def server_side(crosscheck_bin: Path) -> dict:
+    return run_ours(crosscheck_bin, ["observations", "task", "robot"])
 
 
 def test_the_observation_table_is_the_servers(server_side):

@@ -59,10 +59,19 @@ def test_the_packaged_go2_compiles_in_mujoco(monkeypatch):
     np.testing.assert_allclose(go2.effort, [23.7, 23.7, 35.55] * 4)
 
 
-def test_the_crosscheck_driver_outside_a_checkout_is_a_clear_error(monkeypatch, tmp_path):
+def test_the_crosscheck_driver_is_found_by_name_not_by_the_checkout(monkeypatch, tmp_path):
+    """$UNIGAIT_CROSSCHECK_BIN, else `unigait-crosscheck` on PATH; never a walk up the tree (run
+    from a checkout with a built driver, nothing else on PATH: still a clear error)."""
     pytest.importorskip("mujoco")
     from unigait.mujoco.crosscheck import find_crosscheck_binary
 
     monkeypatch.delenv("UNIGAIT_CROSSCHECK_BIN", raising=False)
+    monkeypatch.setenv("PATH", str(tmp_path))
     with pytest.raises(FileNotFoundError, match="UNIGAIT_CROSSCHECK_BIN"):
-        find_crosscheck_binary(search_from=(tmp_path,))
+        find_crosscheck_binary()
+    driver = tmp_path / "unigait-crosscheck"
+    driver.write_text("#!/bin/sh\n")
+    driver.chmod(0o755)
+    assert find_crosscheck_binary() == driver
+    monkeypatch.setenv("UNIGAIT_CROSSCHECK_BIN", "/opt/x/crosscheck")
+    assert find_crosscheck_binary() == Path("/opt/x/crosscheck")

@@ -15,7 +15,7 @@ use std::time::Duration;
 
 use anyhow::{Context, Result};
 use unigait_proto::v1;
-use unigait_record::{DEFAULT_SERVE_PORT, MemoryLimit, ServeOptions, Served};
+use unigait_rrd::{DEFAULT_SERVE_PORT, MemoryLimit, ServeOptions, Served};
 
 use crate::Client;
 
@@ -317,7 +317,7 @@ pub async fn run_replay(args: &ReplayArgs) -> Result<()> {
     if let (Some(last), RecordOutput::Connect(url)) = (args.until_step, &output) {
         let to = url.clone();
         tokio::task::spawn_blocking(move || {
-            unigait_record::send_rrd_until(&rrd, &to, CONNECT_TIMEOUT, Some(last))
+            unigait_rrd::send_rrd_until(&rrd, &to, CONNECT_TIMEOUT, Some(last))
         })
         .await??;
         eprintln!("sent the recording up to step {last} to the viewer at {url}");
@@ -344,10 +344,8 @@ async fn deliver(rrd: Vec<u8>, output: RecordOutput, table: &str) -> Result<()> 
             print!("{table}");
             let to = url.clone();
             // rerun's sinks block until the viewer has the data: off the async workers.
-            tokio::task::spawn_blocking(move || {
-                unigait_record::send_rrd(&rrd, &to, CONNECT_TIMEOUT)
-            })
-            .await??;
+            tokio::task::spawn_blocking(move || unigait_rrd::send_rrd(&rrd, &to, CONNECT_TIMEOUT))
+                .await??;
             eprintln!("sent the recording to the viewer at {url}");
         }
         RecordOutput::Serve { options, until } => {

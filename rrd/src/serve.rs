@@ -3,8 +3,8 @@
 //! The process hosts rerun's gRPC proxy server (`rerun::grpc_server::GrpcServerSink`): what is
 //! logged is buffered there, and a viewer started later with
 //! `rerun --connect rerun+http://127.0.0.1:9876/proxy` gets it all, oldest first. The server
-//! lives as long as the [`Served`] handle (or the served [`crate::Recorder`]); the caller decides
-//! how long that is (the `unigait` CLI: until Ctrl-C or `--serve-for`).
+//! lives as long as the [`Served`] handle (or the served `unigait_record::Recorder`); the caller
+//! decides how long that is (the `unigait-client` CLI: until Ctrl-C or `--serve-for`).
 
 use std::io::BufReader;
 use std::net::{IpAddr, Ipv4Addr, Ipv6Addr, SocketAddr, TcpListener, TcpStream};
@@ -18,7 +18,7 @@ use rerun::log::{Chunk, LogMsg};
 use rerun::sink::{GrpcSink, LogSink as _};
 use rerun::{MemoryLimit, PlaybackBehavior, RecordingStream, ServerOptions};
 
-use crate::error::RecordError;
+use crate::error::RrdError;
 
 /// rerun's proxy port: a bare `rerun --connect` joins it.
 pub const DEFAULT_SERVE_PORT: u16 = 9876;
@@ -54,7 +54,7 @@ impl Default for ServeOptions {
 impl ServeOptions {
     /// Check the address can be listened on now (e.g. before a long rollout, so that a port
     /// in use fails early). Serving checks again.
-    pub fn check(&self) -> Result<(), RecordError> {
+    pub fn check(&self) -> Result<(), RrdError> {
         claim_addr(self.addr).map(|_| ())
     }
 
@@ -85,8 +85,8 @@ fn local_target(addr: SocketAddr) -> SocketAddr {
     SocketAddr::new(ip, addr.port())
 }
 
-fn serve_err(addr: SocketAddr, reason: impl std::fmt::Display) -> RecordError {
-    RecordError::Serve {
+fn serve_err(addr: SocketAddr, reason: impl std::fmt::Display) -> RrdError {
+    RrdError::Serve {
         addr: addr.to_string(),
         reason: reason.to_string(),
     }
@@ -96,7 +96,7 @@ fn serve_err(addr: SocketAddr, reason: impl std::fmt::Display) -> RecordError {
 /// thread and only logs a failure, so a port in use (e.g. by a viewer started with `rerun`,
 /// which listens on 9876) is caught here instead. The probe is released before rerun binds:
 /// a process taking the port in that instant and listening there itself would go unnoticed.
-pub(crate) fn claim_addr(addr: SocketAddr) -> Result<SocketAddr, RecordError> {
+fn claim_addr(addr: SocketAddr) -> Result<SocketAddr, RrdError> {
     let probe = TcpListener::bind(addr).map_err(|e| {
         let hint = match e.kind() {
             std::io::ErrorKind::AddrInUse if addr.port() == DEFAULT_SERVE_PORT => {
@@ -112,7 +112,7 @@ pub(crate) fn claim_addr(addr: SocketAddr) -> Result<SocketAddr, RecordError> {
 }
 
 /// Block until the server at `addr` accepts TCP connections.
-pub(crate) fn wait_listening(addr: SocketAddr) -> Result<(), RecordError> {
+fn wait_listening(addr: SocketAddr) -> Result<(), RrdError> {
     let target = local_target(addr);
     let start = Instant::now();
     loop {
@@ -129,11 +129,12 @@ pub(crate) fn wait_listening(addr: SocketAddr) -> Result<(), RecordError> {
     }
 }
 
-/// Build a stream whose sink is rerun's server on a claimed address, and wait until it listens.
-pub(crate) fn serve_stream(
+/// Build a stream whose sink is rerun's server on a claimed address, and wait until it listens
+/// (a live recording served as it is made: `unigait_record::Recorder::serve`).
+pub fn serve_stream(
     builder: rerun::RecordingStreamBuilder,
     options: &ServeOptions,
-) -> Result<(RecordingStream, SocketAddr), RecordError> {
+) -> Result<(RecordingStream, SocketAddr), RrdError> {
     let addr = claim_addr(options.addr)?;
     let rec = builder
         .serve_grpc_opts(addr.ip().to_string(), addr.port(), options.server_options())
@@ -144,7 +145,7 @@ pub(crate) fn serve_stream(
 
 /// What keeps the server alive.
 enum Keep {
-    /// A served [`crate::Recorder`]'s stream: dropping or disconnecting it stops the server.
+    /// A served live recording's stream: dropping or disconnecting it stops the server.
     Stream(RecordingStream),
     /// A replayed `.rrd`: the sink owns the server.
     Sink(GrpcServerSink),
@@ -164,13 +165,14 @@ impl std::fmt::Debug for Served {
     }
 }
 
-fn decode_rrd(rrd: &[u8]) -> impl Iterator<Item = Result<LogMsg, RecordError>> + '_ {
+fn decode_rrd(rrd: &[u8]) -> impl Iterator<Item = Result<LogMsg, RrdError>> + '_ {
     re_log_encoding::DecoderApp::decode_lazy(BufReader::new(rrd))
-        .map(|m| m.map_err(|e| RecordError::InvalidRrd(e.to_string())))
+        .map(|m| m.map_err(|e| RrdError::InvalidRrd(e.to_string())))
 }
 
 impl Served {
-    pub(crate) fn from_stream(rec: RecordingStream, addr: SocketAddr) -> Self {
+    /// Keep serving a live recording's stream, made with [`serve_stream`] on `addr`.
+    pub fn from_stream(rec: RecordingStream, addr: SocketAddr) -> Self {
         Self {
             keep: Keep::Stream(rec),
             addr,
@@ -180,11 +182,11 @@ impl Served {
     /// Serve a finished recording (the `.rrd` bytes, e.g. of an Evaluate reply): its messages
     /// go to the server as they are (same recording id, no extra recording), and this returns
     /// once they are all buffered there and the server listens.
-    pub fn rrd(rrd: &[u8], options: &ServeOptions) -> Result<Self, RecordError> {
+    pub fn rrd(rrd: &[u8], options: &ServeOptions) -> Result<Self, RrdError> {
         // Decode everything first: a corrupt file must not leave half a recording served.
         let msgs = decode_rrd(rrd).collect::<Result<Vec<_>, _>>()?;
         if msgs.is_empty() {
-            return Err(RecordError::InvalidRrd("no messages".into()));
+            return Err(RrdError::InvalidRrd("no messages".into()));
         }
         if options.memory_limit.is_limited() && rrd.len() as u64 > options.memory_limit.as_bytes() {
             tracing::warn!(
@@ -224,7 +226,7 @@ impl Served {
     }
 
     /// Flush what is pending and stop the server (connected viewers keep what they received).
-    pub fn shutdown(self) -> Result<(), RecordError> {
+    pub fn shutdown(self) -> Result<(), RrdError> {
         match self.keep {
             Keep::Stream(rec) => {
                 let flushed = rec.flush_blocking().map_err(|e| serve_err(self.addr, e));
@@ -245,7 +247,7 @@ impl Served {
 
 /// Send a finished recording (the `.rrd` bytes) to a viewer's gRPC proxy, e.g.
 /// `rerun+http://127.0.0.1:9876/proxy`; fails if it is not delivered within `timeout`.
-pub fn send_rrd(rrd: &[u8], url: &str, timeout: Duration) -> Result<(), RecordError> {
+pub fn send_rrd(rrd: &[u8], url: &str, timeout: Duration) -> Result<(), RrdError> {
     send_rrd_until(rrd, url, timeout, None)
 }
 
@@ -257,10 +259,10 @@ pub fn send_rrd_until(
     url: &str,
     timeout: Duration,
     last_step: Option<i64>,
-) -> Result<(), RecordError> {
+) -> Result<(), RrdError> {
     let uri: ProxyUri = url
         .parse()
-        .map_err(|e| RecordError::Open(format!("bad viewer URL `{url}`: {e}")))?;
+        .map_err(|e| RrdError::Open(format!("bad viewer URL `{url}`: {e}")))?;
     let mut msgs = decode_rrd(rrd).collect::<Result<Vec<_>, _>>()?;
     if let Some(last) = last_step {
         msgs = cut_after(msgs, "step", last)?;
@@ -270,16 +272,16 @@ pub fn send_rrd_until(
         sink.send(msg);
     }
     sink.flush_blocking(timeout)
-        .map_err(|e| RecordError::Open(format!("cannot deliver to the viewer at {url}: {e}")))
+        .map_err(|e| RrdError::Open(format!("cannot deliver to the viewer at {url}: {e}")))
 }
 
 /// The messages with the rows logged after `last` on `timeline` left out (rows without that
 /// timeline, and messages other than data, are kept).
-pub(crate) fn cut_after(
+fn cut_after(
     msgs: Vec<LogMsg>,
     timeline: &'static str,
     last: i64,
-) -> Result<Vec<LogMsg>, RecordError> {
+) -> Result<Vec<LogMsg>, RrdError> {
     let name = TimelineName::from_static_str(timeline);
     let mut out = Vec::with_capacity(msgs.len());
     for msg in msgs {
@@ -288,7 +290,7 @@ pub(crate) fn cut_after(
             continue;
         };
         let chunk =
-            Chunk::from_arrow_msg(arrow).map_err(|e| RecordError::InvalidRrd(e.to_string()))?;
+            Chunk::from_arrow_msg(arrow).map_err(|e| RrdError::InvalidRrd(e.to_string()))?;
         let Some(column) = chunk.timelines().get(&name) else {
             out.push(msg);
             continue;
@@ -301,7 +303,7 @@ pub(crate) fn cut_after(
         {
             let arrow = cut
                 .to_arrow_msg()
-                .map_err(|e| RecordError::InvalidRrd(e.to_string()))?;
+                .map_err(|e| RrdError::InvalidRrd(e.to_string()))?;
             out.push(LogMsg::ArrowMsg(store.clone(), arrow));
         }
     }

@@ -1,6 +1,7 @@
 //! What can go wrong while recording.
 
 use thiserror::Error;
+use unigait_rrd::RrdError;
 
 /// A recording that could not be made.
 #[derive(Debug, Error)]
@@ -33,6 +34,17 @@ pub enum RecordError {
         /// Envs in the batch.
         num_envs: usize,
     },
+}
+
+/// Serving and sending (`unigait-rrd`) fail the same ways a recording does.
+impl From<RrdError> for RecordError {
+    fn from(e: RrdError) -> Self {
+        match e {
+            RrdError::Open(reason) => Self::Open(reason),
+            RrdError::Serve { addr, reason } => Self::Serve { addr, reason },
+            RrdError::InvalidRrd(reason) => Self::InvalidRrd(reason),
+        }
+    }
 }
 
 /// A stream that could not be opened, as a [`RecordError`].

@@ -13,8 +13,8 @@
 //! served from this process for a viewer to join later ([`Recorder::serve`]; [`Served::rrd`]
 //! for a finished `.rrd`): rerun's gRPC server runs here (loopback by default) and buffers the
 //! recording up to a memory limit, and `rerun --connect rerun+http://HOST:PORT/proxy` joins it.
-//! rerun's `sdk` feature plus its `server` feature (the proxy server: axum, tonic-web,
-//! tower-http, re_grpc_server) are used.
+//! Serving and sending finished recordings live in `unigait-rrd` (no simulator, so the client
+//! replays through it alone) and are re-exported here.
 //! rerun uses glam 0.30 and rapier glam 0.33: everything crosses as plain arrays.
 //!
 //! Entity layout: the followed env at `world/robot/<body>` (pose per step) with
@@ -37,14 +37,12 @@ mod error;
 mod outcome;
 mod recorder;
 mod scene;
-mod serve;
 mod terrain_mesh;
 
 pub use error::RecordError;
 pub use recorder::{APPLICATION_ID, FOOT_NAMES, RecordOptions, Recorder};
-pub use rerun::MemoryLimit;
-pub use serve::{
-    DEFAULT_MEMORY_LIMIT_BYTES, DEFAULT_SERVE_PORT, ServeOptions, Served, proxy_url, send_rrd,
-    send_rrd_until,
-};
 pub use terrain_mesh::{FLAT_TILE_M, TerrainMesh, terrain_mesh};
+pub use unigait_rrd::{
+    DEFAULT_MEMORY_LIMIT_BYTES, DEFAULT_SERVE_PORT, MemoryLimit, RrdError, ServeOptions, Served,
+    proxy_url, send_rrd, send_rrd_until,
+};

@@ -17,8 +17,8 @@ use crate::entity;
 use crate::error::{RecordError, log_err, open_err};
 use crate::outcome::{Tracked, log_outcome_events, mode_name};
 use crate::scene::{ScenePaths, log_robot_shapes, quat};
-use crate::serve::{ServeOptions, Served, proxy_url, serve_stream};
 use crate::terrain_mesh::terrain_mesh;
+use unigait_rrd::{ServeOptions, Served, proxy_url, serve_stream};
 
 /// The rerun application id of unigait recordings.
 pub const APPLICATION_ID: &str = "unigait";

@@ -14,7 +14,7 @@ use rerun::external::re_grpc_client;
 use rerun::log::{Chunk, LogMsg};
 use rerun::{StoreKind, TimelineName};
 use unigait_record::{
-    FOOT_NAMES, RecordError, RecordOptions, Recorder, ServeOptions, Served, entity,
+    FOOT_NAMES, RecordError, RecordOptions, Recorder, RrdError, ServeOptions, Served, entity,
 };
 use unigait_sim::env::{VecEnv, VecEnvOptions};
 use unigait_sim::robot::RobotModel;
@@ -413,7 +413,7 @@ fn serving_on_a_port_in_use_is_an_error() {
     let err = Served::rrd(&bytes, &options).expect_err("in use");
     assert!(err.to_string().contains("in use"), "{err}");
     let err = Served::rrd(b"not an rrd", &loopback_any_port()).expect_err("invalid");
-    assert!(matches!(err, RecordError::InvalidRrd(_)), "{err}");
+    assert!(matches!(err, RrdError::InvalidRrd(_)), "{err}");
     let not_served = Recorder::in_memory(RecordOptions::default()).expect("memory");
     assert!(matches!(
         not_served.finish_serving(),

@@ -2,14 +2,15 @@
 //! and a dump of observations `VecEnv` built, printed as one JSON document on stdout.
 //!
 //! ```sh
-//! cargo build --release -p unigait-sim --examples
-//! ./target/release/examples/crosscheck                 # every scenario
-//! ./target/release/examples/crosscheck stand drop      # only these
-//! ./target/release/examples/crosscheck --armature 0 stand   # physics overrides, to find causes
+//! cargo build --release -p unigait-crosscheck
+//! ./target/release/unigait-crosscheck                      # every scenario
+//! ./target/release/unigait-crosscheck stand drop           # only these
+//! ./target/release/unigait-crosscheck --armature 0 stand   # physics overrides, to find causes
 //! ```
 //!
 //! The Python side (`unigait.mujoco`) runs the same scenarios in MuJoCo on the same URDF and
-//! compares the figures (`tests/test_mujoco_crosscheck.py`, `python -m unigait crosscheck`).
+//! compares the figures (`tests/test_mujoco_crosscheck.py`, `python -m unigait crosscheck`). It
+//! finds this binary by `--binary`, `$UNIGAIT_CROSSCHECK_BIN` or `unigait-crosscheck` on PATH.
 //! Every scenario echoes its parameters under `params`, so the two sides cannot drift apart
 //! unnoticed. Scenarios:
 //!
@@ -35,7 +36,8 @@ use unigait_sim::physics::{PhysicsParams, RobotPhysicalParams, RobotState, Robot
 use unigait_sim::prelude::*;
 use unigait_sim::task::{OBSERVATION, euler_pitch};
 
-/// Minimal JSON values (the sim crate has no serde_json, and an example cannot add one).
+/// Minimal JSON values (written when this was an example of the sim crate, which has no
+/// serde_json).
 enum J {
     Num(f64),
     Str(String),

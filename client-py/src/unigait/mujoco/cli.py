@@ -51,7 +51,7 @@ def _crosscheck(args: argparse.Namespace) -> int:
         return 1
     if not binary.is_file():
         print(
-            f"error: {binary} not found: `cargo build --release -p unigait-sim --examples`",
+            f"error: {binary} not found: `cargo build --release -p unigait-crosscheck`",
             file=sys.stderr,
         )
         return 1
@@ -88,7 +88,11 @@ def register(subparsers: Any) -> None:
     c = subparsers.add_parser(
         "crosscheck", help="physics cross-checks: our simulator against MuJoCo, side by side"
     )
-    c.add_argument("--binary", help="the crosscheck example (default target/release/examples/)")
+    c.add_argument(
+        "--binary",
+        help="the cross-check driver (default: $UNIGAIT_CROSSCHECK_BIN, else "
+        "unigait-crosscheck on PATH)",
+    )
     c.add_argument("--scenario", action="append", help="scenario name, repeatable (default all)")
     c.add_argument(
         "--armature", type=float, help="joint armature for both engines (default nominal 0.02)"

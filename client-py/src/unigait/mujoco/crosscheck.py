@@ -1,7 +1,8 @@
 """Both sides of the physics cross-checks, and their figures side by side.
 
-Ours: the example binary of the sim crate (``cargo build --release -p unigait-sim --examples``,
-then ``target/release/examples/crosscheck``), which prints one JSON document. Theirs:
+Ours: the ``unigait-crosscheck`` binary (a repository tool: ``cargo build --release -p
+unigait-crosscheck`` builds ``target/release/unigait-crosscheck``), which prints one JSON
+document; :func:`find_crosscheck_binary` says where it is looked for. Theirs:
 :mod:`unigait.mujoco.scenarios`. :func:`figures` pairs the scalar figures of every scenario;
 the tolerances live in ``tests/test_mujoco_crosscheck.py``.
 """
@@ -11,8 +12,8 @@ from __future__ import annotations
 import json
 import math
 import os
+import shutil
 import subprocess
-from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -20,39 +21,39 @@ from typing import Any
 from unigait.mujoco.model import PhysicsOptions
 from unigait.mujoco.scenarios import SCENARIOS, run
 
+#: The cross-check driver's executable name (the ``unigait-crosscheck`` crate's binary).
+CROSSCHECK_BINARY = "unigait-crosscheck"
 
-def find_crosscheck_binary(search_from: Sequence[Path] | None = None) -> Path:
-    """``$UNIGAIT_CROSSCHECK_BIN`` or ``target/release/examples/crosscheck`` of the repository.
 
-    The binary is a repository tool: the checkout is found above ``search_from`` (default: this
-    module, for an editable install, then the working directory, for an installed package run
-    from a checkout). The path is returned whether or not the file exists.
+def find_crosscheck_binary() -> Path:
+    """The cross-check driver: ``$UNIGAIT_CROSSCHECK_BIN``, else ``unigait-crosscheck`` on PATH.
+
+    Nothing is guessed from where this package or the working directory is: an installed
+    package has no checkout to look in.
 
     Raises:
-        FileNotFoundError: Not in a checkout (no ``Cargo.toml`` beside ``server/`` above any start).
+        FileNotFoundError: Neither is set or found.
     """
     env = os.environ.get("UNIGAIT_CROSSCHECK_BIN")
     if env:
         return Path(env)
-    starts = search_from if search_from is not None else (Path(__file__), Path.cwd())
-    for start in starts:
-        for parent in (start.resolve(), *start.resolve().parents):
-            if (parent / "Cargo.toml").is_file() and (parent / "server").is_dir():
-                return parent / "target" / "release" / "examples" / "crosscheck"
+    found = shutil.which(CROSSCHECK_BINARY)
+    if found:
+        return Path(found)
     raise FileNotFoundError(
-        "the crosscheck binary is built in a unigait checkout (`cargo build --release -p "
-        "unigait-sim --examples`), and none was found above "
-        f"{', '.join(str(s) for s in starts)}; run from one or set UNIGAIT_CROSSCHECK_BIN"
+        f"the cross-check driver `{CROSSCHECK_BINARY}` is not on PATH: build it in a unigait "
+        f"checkout (`cargo build --release -p {CROSSCHECK_BINARY}`), then put target/release "
+        "on PATH or set UNIGAIT_CROSSCHECK_BIN to the binary"
     )
 
 
 def run_ours(
     binary: Path, names: list[str] | None = None, armature: float | None = None
 ) -> dict[str, Any]:
-    """Run the example binary (the named scenarios, or all) and parse its JSON.
+    """Run the cross-check driver (the named scenarios, or all) and parse its JSON.
 
     Args:
-        binary: The example binary.
+        binary: The driver (see :func:`find_crosscheck_binary`).
         names: Scenario names; None = all.
         armature: Override the nominal joint armature (kg m^2), to find a difference's cause.
     """
@@ -131,7 +132,7 @@ def compare(
     """Run the named physics scenarios (all by default) in both engines and pair the figures.
 
     Args:
-        binary: Our example binary; None = :func:`find_crosscheck_binary`.
+        binary: The cross-check driver; None = :func:`find_crosscheck_binary`.
         names: Scenario names; None = all.
         armature: Joint armature for both engines (kg m^2); None = the nominal 0.02.
     """

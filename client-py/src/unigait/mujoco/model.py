@@ -3,7 +3,7 @@
 Both simulators load the same URDF, so what differs between them is the engine, not the robot.
 The URDF gives bodies, inertials, joints, limits and collision primitives; the rest is the
 server's robot config and physics settings, written here once (the cross-check test compares
-each value with what the server's example binary reports):
+each value with what the cross-check driver, ``unigait-crosscheck``, reports):
 
 - a free joint on ``base`` (the URDF root), or the base welded in place (``fixed_base_height``);
 - URDF cylinders become capsules of the same radius and length (the server does the same, as

@@ -1,6 +1,6 @@
 """The physics cross-check scenarios, run in MuJoCo.
 
-Each function mirrors the scenario of the same name in ``server/sim/examples/crosscheck.rs``
+Each function mirrors the scenario of the same name in ``tools/crosscheck/src/main.rs``
 (same initial state, same target sequence, same measures) and returns the same keys. Shared
 definitions: physics step 5 ms, targets held for 4 steps where a policy would set them, joints
 in action order (FL, FR, RL, RR x hip, thigh, calf), the robot level at rest at the start.
@@ -326,7 +326,7 @@ SCENARIOS: dict[str, Callable[[PhysicsOptions], Result]] = {
     "free_float_roll": lambda o: free_float(o, [0, 6]),
     "free_float_pitch": lambda o: free_float(o, [1, 4, 7, 10]),
 }
-"""Every physics scenario by name, as the example binary names them."""
+"""Every physics scenario by name, as the cross-check driver names them."""
 
 
 def run(names: list[str] | None = None, options: PhysicsOptions | None = None) -> dict[str, Result]:
