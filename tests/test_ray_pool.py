@@ -303,8 +303,9 @@ def test_tls_token_pool_trains_and_restarts_over_tls(cluster, server_bin, tls_fi
         for m in pool.members:
             argv = _server_argv(m.pid)
             assert "--tls-cert" in argv and "--token-file" in argv
-            key_copy = Path(argv[argv.index("--tls-key") + 1])
-            assert not key_copy.exists(), "the shipped key outlived the server's start"
+            # Shipped contents come through pipes, never a file.
+            for flag in ("--tls-cert", "--tls-key", "--token-file"):
+                assert argv[argv.index(flag) + 1].startswith("/dev/fd/"), argv
         with pytest.raises(UnigaitError, match="plaintext"):  # TLS only
             Client(pool.addresses[0], token=TOKEN, connect_timeout_s=1.5)
         with Client(pool.addresses[0], root_certificates=cert.read_bytes()) as client:
@@ -432,3 +433,112 @@ def test_cli_train_ray_over_tls_with_token_from_the_environment(
     while pool_servers() - before and time.monotonic() < deadline:
         time.sleep(0.1)
     assert not pool_servers() - before, "the CLI left server processes behind"
+
+
+# --- secrets never kept by Ray or left on a node ----------------------------------------------
+
+
+def _memory_holds(pid: int, needles: list[bytes]) -> dict[bytes, bool]:
+    """Which of ``needles`` appear in the writable memory of process ``pid`` (read as root)."""
+    found = dict.fromkeys(needles, False)
+    chunk, overlap = 16 << 20, max(len(n) for n in needles)
+    with open(f"/proc/{pid}/maps") as maps, open(f"/proc/{pid}/mem", "rb", 0) as mem:
+        for line in maps:
+            span, perms = line.split()[:2]
+            if not perms.startswith("rw"):
+                continue
+            start, end = (int(x, 16) for x in span.split("-"))
+            for at in range(start, end, chunk):
+                try:
+                    mem.seek(at)
+                    data = mem.read(min(chunk + overlap, end - at))
+                except (OSError, OverflowError, ValueError):  # unreadable (guard pages, vvar)
+                    break
+                for n in needles:
+                    found[n] = found[n] or n in data
+    return found
+
+
+def test_the_token_is_not_kept_by_rays_control_store(cluster, server_bin, tls_files):
+    """Ray keeps every actor's creation arguments in its control store (the GCS process) for
+    restarts. The pool's id, a creation argument, is found in the GCS's memory (so the search
+    can see them); the shipped token and key, sent in the start call instead, are not."""
+    if os.geteuid() != 0:
+        pytest.skip("reading another process's memory needs root")
+    cert, key, _ = tls_files
+    gcs = cluster.head_node.all_processes["gcs_server"][0].process.pid
+    key_body = key.read_bytes().splitlines()[5]  # a line of the key's base64
+    credentials = ServerCredentials.shipped(cert, key, TOKEN)
+    with ServerPool(2, 1, binary=str(server_bin), credentials=credentials) as pool:
+        with Client(pool.addresses[0], root_certificates=cert.read_bytes(), token=TOKEN) as client:
+            assert client.server_info().active_sessions == 0  # the servers got the token
+        found = _memory_holds(gcs, [pool.pool_id.encode(), TOKEN.encode(), key_body])
+    assert found[pool.pool_id.encode()], "the search does not see creation arguments"
+    assert not found[TOKEN.encode()], "the token is in Ray's control store"
+    assert not found[key_body], "the private key is in Ray's control store"
+
+
+def test_an_actor_killed_while_its_server_starts_leaves_no_secret_behind(
+    cluster, tls_files, tmp_path
+):
+    """Kill an actor while its server is starting (a stand-in server that reads its token file
+    and hangs): the token reached the server, and nothing under /dev/shm holds it or the key,
+    then or after the kill."""
+    from unigait.ray.server_actor import ServerActor
+
+    cert, key, _ = tls_files
+    fake = tmp_path / "hanging-server"
+    fake.write_text(
+        "#!/bin/sh\n"
+        'while [ $# -gt 0 ]; do [ "$1" = --token-file ] && cat "$2" > "$0.read"; shift; done\n'
+        "while :; do sleep 1; done\n"
+    )
+    fake.chmod(0o755)
+    got = Path(f"{fake}.read")
+    secrets = [TOKEN.encode(), key.read_bytes().splitlines()[5]]
+
+    def shm_holding_secrets() -> list[Path]:
+        hits = []
+        for p in Path("/dev/shm").rglob("*"):
+            try:
+                if p.is_file() and p.stat().st_size < (1 << 20):
+                    data = p.read_bytes()
+                    hits += [p] if any(s in data for s in secrets) else []
+            except OSError:
+                continue
+        return hits
+
+    before = {p.name for p in Path("/dev/shm").iterdir()}
+    actor = (
+        ray.remote(ServerActor)
+        .options(num_cpus=0, max_restarts=0)
+        .remote(str(fake), 1, "127.0.0.1", (), 60.0)
+    )
+    starting = actor.start.remote(ServerCredentials.shipped(cert, key, TOKEN))
+    deadline = time.monotonic() + 30
+    while not (got.exists() and got.read_text() == TOKEN) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert got.read_text() == TOKEN, "the stand-in server never read its token"
+    hanging = [
+        int(e.name)
+        for e in Path("/proc").iterdir()
+        if e.name.isdigit() and _running(int(e.name)) and str(fake).encode() in _cmdline(e)
+    ]
+    assert hanging, "the stand-in server is not running"
+    argv = _server_argv(hanging[0])
+    assert argv[argv.index("--token-file") + 1].startswith("/dev/fd/") and TOKEN not in argv
+    assert not shm_holding_secrets(), "secrets written to /dev/shm during the start"
+    ray.kill(actor, no_restart=True)
+    with pytest.raises(ray.exceptions.RayActorError):
+        ray.get(starting, timeout=30)
+    assert_all_gone(set(hanging))
+    new = {p.name for p in Path("/dev/shm").iterdir()} - before
+    assert not [n for n in new if n.startswith("unigait-credentials")], new
+    assert not shm_holding_secrets(), "secrets left in /dev/shm by the killed actor"
+
+
+def _cmdline(entry: Path) -> bytes:
+    try:
+        return (entry / "cmdline").read_bytes()
+    except OSError:
+        return b""

@@ -6,18 +6,18 @@ The server reads its certificate, key and token from files (``serve --tls-cert -
 * **A path on every node** (``cert_file``, ``key_file``, ``token_file``; the default of the
   CLI): the cluster puts the files there, e.g. Kubernetes secrets mounted into every worker pod
   (``deploy/k8s/raycluster.yaml``), a shared volume, or config management. The secrets then never
-  pass through Ray: they are not in the actor's arguments, which Ray keeps in its control store
-  (GCS, persisted to Redis when GCS fault tolerance is on) for as long as the actor may be
-  restarted, and the kubelet can rotate them. This is the way for production clusters.
-* **Contents in the actor's arguments** (``cert_pem``, ``key_pem``, ``token``; see
+  pass through Ray, and the kubelet can rotate them. This is the way for production clusters.
+* **Shipped contents** (``cert_pem``, ``key_pem``, ``token``; see
   :meth:`ServerCredentials.shipped`): for clusters with no way to place files on their nodes (and
-  the tests). The actor writes them to a private directory (mode 0700, files 0600, in
-  ``/dev/shm`` where it exists, so not on disk), starts the server, and deletes them as soon as
-  the server has read them (it prints its address after loading them). They ride in the actor's
-  creation arguments, not in a ``runtime_env`` (whose ``env_vars`` the dashboard shows). Ray has
-  no access control of its own: whoever can submit work to the cluster can read the nodes'
-  files anyway, so this is no weaker than the cluster's own boundary, but the key then stays in
-  GCS memory for the job's life.
+  the tests). They are never in an actor's creation arguments, which Ray keeps in its control
+  store (GCS, persisted to Redis when GCS fault tolerance is on) for as long as the actor may be
+  restarted: the pool sends them in the call that starts each server (``ServerActor.start``, a
+  direct call from the driver to the actor that Ray does not keep once it returned), again after
+  a restart. The actor hands them to the server through pipes (``--token-file /dev/fd/N``), so
+  they are never written to a file, not even in ``/dev/shm``, and nothing is left behind by an
+  actor killed while its server starts. Ray has no access control of its own: whoever can submit
+  work to the cluster can read the nodes' files anyway, so this is no weaker than the cluster's
+  own boundary.
 
 The token the learner sends is :attr:`ServerCredentials.token`; without ``token_file`` the
 servers are given the same one (shipped). The learner verifies the servers' certificates with
@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import contextlib
 import os
-import tempfile
+import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -157,12 +157,13 @@ class ServerCredentials:
         opts.pop("token", None)
         return opts
 
-    def server_flags(self) -> tuple[list[str], Path | None]:
-        """On the actor's node: the ``serve`` flags, writing shipped contents to files.
+    def server_flags(self) -> tuple[list[str], SecretPipes]:
+        """On the actor's node: the ``serve`` flags, shipped contents read from pipes.
 
         Returns:
-            The flags and the private directory of shipped files (None: nothing shipped);
-            delete it with :func:`remove_private_dir` once the server has read them.
+            The flags and the pipes they name (``/dev/fd/N``): pass ``pipes.fds`` to the
+            server's process (``pass_fds``), then call ``pipes.send()`` once it is spawned, or
+            ``pipes.close()`` if it was not.
 
         Raises:
             FileNotFoundError: A ``*_file`` is not on this node.
@@ -170,40 +171,22 @@ class ServerCredentials:
         for path in (self.cert_file, self.key_file, self.token_file):
             if path is not None and not Path(path).is_file():
                 raise FileNotFoundError(f"{path} is not on this node")
+        token = None if self.token_file is not None else self.token
         shipped = {
-            "cert.pem": self.cert_pem,
-            "key.pem": self.key_pem,
-            "token": None if self.token_file is not None else self.token,
+            "--tls-cert": self.cert_pem,
+            "--tls-key": self.key_pem,
+            "--token-file": token.encode() if token is not None else None,
         }
-        directory: Path | None = None
-        if any(v is not None for v in shipped.values()):
-            shm = Path("/dev/shm")
-            base = shm if shm.is_dir() and os.access(shm, os.W_OK) else None
-            directory = Path(tempfile.mkdtemp(prefix="unigait-credentials-", dir=base))
-            for name, value in shipped.items():
-                if value is None:
-                    continue
-                data = value.encode() if isinstance(value, str) else value
-                fd = os.open(directory / name, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
-                with os.fdopen(fd, "wb") as f:
-                    f.write(data)
-
-        def where(node_path: str | None, name: str) -> str | None:
-            if node_path is not None:
-                return node_path
-            if directory is not None and shipped[name] is not None:
-                return str(directory / name)
-            return None
-
+        pipes = SecretPipes({k: v for k, v in shipped.items() if v is not None})
         flags: list[str] = []
-        for flag, path in (
-            ("--tls-cert", where(self.cert_file, "cert.pem")),
-            ("--tls-key", where(self.key_file, "key.pem")),
-            ("--token-file", where(self.token_file, "token")),
+        for flag, node_path in (
+            ("--tls-cert", self.cert_file),
+            ("--tls-key", self.key_file),
+            ("--token-file", self.token_file),
         ):
-            if path is not None:
-                flags += [flag, path]
-        return flags, directory
+            if node_path is not None:
+                flags += [flag, node_path]
+        return flags + pipes.flags, pipes
 
     @classmethod
     def from_files(
@@ -239,15 +222,48 @@ class ServerCredentials:
         )
 
 
-def remove_private_dir(directory: Path | None) -> None:
-    """Delete a directory of shipped credentials (overwrite the files first: tmpfs or disk)."""
-    if directory is None or not directory.is_dir():
-        return
-    for entry in directory.iterdir():
-        with contextlib.suppress(OSError):
-            size = entry.stat().st_size
-            with open(entry, "r+b") as f:
-                f.write(b"\0" * size)
-            entry.unlink()
-    with contextlib.suppress(OSError):
-        directory.rmdir()
+class SecretPipes:
+    """Shipped contents handed to a child process through pipes, never through a file.
+
+    Each content gets a pipe whose read end the child inherits and opens as ``/dev/fd/N`` (the
+    server reads its files once, at start); a thread writes the content into the write end and
+    closes it. A child that dies first closes the read end, and the write fails and ends.
+
+    Attributes:
+        flags: ``[flag, "/dev/fd/N", ...]`` for each content.
+        fds: The read ends (``subprocess.Popen(pass_fds=...)``).
+    """
+
+    def __init__(self, contents: dict[str, bytes]) -> None:
+        self.flags: list[str] = []
+        self.fds: list[int] = []
+        self._writes: list[tuple[int, bytes]] = []
+        for flag, data in contents.items():
+            read_end, write_end = os.pipe()
+            self.flags += [flag, f"/dev/fd/{read_end}"]
+            self.fds.append(read_end)
+            self._writes.append((write_end, data))
+
+    def send(self) -> None:
+        """Once the child is spawned: close the read ends here, write the contents."""
+        for fd in self.fds:
+            os.close(fd)
+        self.fds = []
+        for fd, data in self._writes:
+            threading.Thread(target=_write_and_close, args=(fd, data), daemon=True).start()
+        self._writes = []
+
+    def close(self) -> None:
+        """Close every end (the child was not spawned)."""
+        for fd in [*self.fds, *(w for w, _ in self._writes)]:
+            with contextlib.suppress(OSError):
+                os.close(fd)
+        self.fds, self._writes = [], []
+
+
+def _write_and_close(fd: int, data: bytes) -> None:
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+    except OSError:  # the child exited without reading (its own error says why)
+        pass

@@ -31,14 +31,16 @@ same machine (a one-node cluster, the tests' two-node local cluster). Beyond it 
 each node's IP) the server requires TLS and a bearer token, so the pool refuses to start such
 servers without ``credentials`` (:class:`~unigait.ray.credentials.ServerCredentials`: the
 certificate, key and token as paths on every node, e.g. mounted Kubernetes secrets, or shipped
-in the actors' arguments; see :mod:`unigait.ray.credentials` for the choice) and passes
+in the call that starts each server, never in the actors' creation arguments; see
+:mod:`unigait.ray.credentials` for the choice) and passes
 ``--allow-remote``. The same credentials give the learner's sessions the CA and the token, and
 the health checks the CA. After the servers come up the pool makes one authenticated call to
 each, so a wrong or missing token fails the start at once with the server's answer.
 
 Restarts: each actor has ``max_restarts`` (default: unlimited). When its server dies the actor
 ends itself, Ray starts it again in the same bundle (or, if the node is gone, wherever the
-placement group's bundle is rescheduled), and the new actor starts a new server on a new port.
+placement group's bundle is rescheduled), and :meth:`ServerPool.replacement` starts a new server
+in the new actor (on a new port, with the credentials again).
 Shutdown (:meth:`ServerPool.close`, also on leaving ``with``) stops every server, kills the
 actors without restart and removes the placement group; a server whose actor dies any other way
 is killed by the kernel (see :mod:`unigait.ray.server_actor`).
@@ -256,13 +258,14 @@ class ServerPool(ClosesOnExit):
                     self._extra_args,
                     self._startup_timeout_s,
                     self._echo,
-                    self.credentials,
                     self.pool_id,
                 )
                 for i in range(self.num_servers)
             ]
+            # The credentials go in a call, not in the creation arguments that Ray keeps.
             infos = ray.get(
-                [a.info.remote() for a in self._actors], timeout=self._startup_timeout_s
+                [a.start.remote(self.credentials) for a in self._actors],
+                timeout=2 * self._startup_timeout_s,
             )
             self.members = [ServerPlacement.from_info(i, info) for i, info in enumerate(infos)]
             for m in self.members:
@@ -343,6 +346,13 @@ class ServerPool(ClosesOnExit):
             except ray.exceptions.ActorUnavailableError:  # restarting; try again shortly
                 time.sleep(0.2)
                 continue
+            if not info["address"]:  # a restarted actor: start its server
+                try:
+                    info = ray.get(
+                        self._actors[index].start.remote(self.credentials), timeout=remaining
+                    )
+                except (ray.exceptions.GetTimeoutError, ray.exceptions.ActorUnavailableError):
+                    continue
             healthy = info["alive"] and check_health(
                 info["address"], timeout_s=min(2.0, remaining), **self._health_options()
             )

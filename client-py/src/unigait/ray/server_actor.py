@@ -1,11 +1,13 @@
 """One ``unigait-server`` process owned by a Ray actor: the two live and die together.
 
-The actor starts ``unigait-server serve --addr HOST:0 --threads K`` on the node Ray placed it on
-and reads the address from the server's ``listening on ADDR`` line. A watcher thread owns the
-process for its whole life:
+The actor's :meth:`~ServerActor.start` (called by the pool, with the credentials, which are
+therefore never among the actor's creation arguments that Ray keeps) starts ``unigait-server
+serve --addr HOST:0 --threads K`` on the node Ray placed it on and reads the address from the
+server's ``listening on ADDR`` line. A watcher thread owns the process for its whole life:
 
 * the server dies (crash, OOM kill, ``kill -9``): the actor process exits at once, so that Ray
-  restarts the actor (``max_restarts``), and the restarted actor starts a new server (a new port);
+  restarts the actor (``max_restarts``), and the pool starts a new server in the restarted actor
+  (a new port);
 * the actor dies (``ray.kill``, the driver ends, the worker crashes): the kernel kills the server
   (``PR_SET_PDEATHSIG``, set in the child for the watcher thread that spawned it, which lives
   exactly as long as the server), so no server outlives its actor.
@@ -29,7 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from unigait.client.connection import parse_address
-from unigait.ray.credentials import ServerCredentials, remove_private_dir
+from unigait.ray.credentials import SecretPipes, ServerCredentials
 from unigait.server_process import default_server_bin
 
 _LISTENING = re.compile(r"listening on (\S+):(\d+)")
@@ -76,24 +78,23 @@ def _die_with_parent() -> None:  # runs in the child between fork and exec
 class ServerActor:
     """A ``unigait-server serve`` child process (use it through ``ray.remote``, see the pool).
 
+    The server starts with :meth:`start`.
+
     Args:
         binary: See :func:`resolve_binary` (resolved on the actor's node).
         threads: Env worker threads of the server (``--threads``): the actor's CPUs.
         host: Address to bind (``"127.0.0.1"``: loopback); None binds the node's IP. Beyond
             loopback the actor adds ``--allow-remote``, and the server then insists on TLS and
-            a token (``credentials``).
+            a token (:meth:`start`'s ``credentials``).
         extra_args: More ``serve`` flags (``--max-envs``, ``--idle-timeout``, ...).
         startup_timeout_s: How long to wait for the ``listening on`` line.
         echo_output: Copy the server's output to the actor's stdout (Ray's worker log, and the
             driver's console when ``log_to_driver``).
-        credentials: TLS certificate, key and token (paths on this node, or shipped contents,
-            written to a private directory and deleted once the server has read them).
         pool_id: Put in the server's environment as ``$UNIGAIT_RAY_POOL`` (leak checks).
 
     Raises:
-        FileNotFoundError: No binary, or a credentials file is not on this node.
-        RuntimeError: The server exited or said nothing in time (the actor's creation fails,
-            and Ray does not restart an actor whose constructor raised).
+        FileNotFoundError: No binary (the actor's creation fails, and Ray does not restart an
+            actor whose constructor raised).
     """
 
     def __init__(
@@ -104,7 +105,6 @@ class ServerActor:
         extra_args: Sequence[str] = (),
         startup_timeout_s: float = 60.0,
         echo_output: bool = False,
-        credentials: ServerCredentials | None = None,
         pool_id: str = "",
     ) -> None:
         import ray
@@ -115,12 +115,7 @@ class ServerActor:
         bind = host if host is not None else self._node_ip
         bind_addr = f"[{bind}]:0" if ":" in bind else f"{bind}:0"
         remote = not parse_address(bind_addr).is_loopback
-        self._tls = credentials is not None and credentials.tls
-        auth: list[str] = []
-        self._secrets: Path | None = None
-        if credentials is not None:
-            auth, self._secrets = credentials.server_flags()
-        self._cmd = [
+        self._serve = [
             str(self._binary),
             "serve",
             "--addr",
@@ -128,29 +123,58 @@ class ServerActor:
             "--threads",
             str(threads),
             *(["--allow-remote"] if remote and "--allow-remote" not in extra_args else []),
-            *auth,
-            *extra_args,
         ]
+        self._extra_args = list(extra_args)
+        self._cmd = [*self._serve, *self._extra_args]
+        self._startup_timeout_s = startup_timeout_s
         self._env = {**os.environ, POOL_ID_ENV: pool_id} if pool_id else None
         self._threads = threads
         self._echo = echo_output
+        self._tls = False
         self.output: deque[str] = deque(maxlen=200)
         self._address = ""
+        self._started = False
         self._proc: subprocess.Popen[str] | None = None
         self._spawn_error: OSError | None = None
+        self._pipes: SecretPipes | None = None
         self._ready = threading.Event()
         self._stopping = threading.Event()
+
+    def start(self, credentials: ServerCredentials | None = None) -> dict[str, Any]:
+        """Start the server (once; later calls return :meth:`info`).
+
+        Args:
+            credentials: TLS certificate, key and token: paths on this node, or shipped
+                contents, which reach the server through pipes (never a file).
+
+        Returns:
+            :meth:`info`.
+
+        Raises:
+            FileNotFoundError: A credentials file is not on this node.
+            RuntimeError: The server exited or said nothing in time.
+        """
+        if self._started:
+            return self.info()
+        self._started = True
+        auth: list[str] = []
+        if credentials is not None:
+            self._tls = credentials.tls
+            auth, self._pipes = credentials.server_flags()
+        self._cmd = [*self._serve, *auth, *self._extra_args]
         threading.Thread(target=self._own, daemon=True, name="unigait-server").start()
-        if not self._ready.wait(startup_timeout_s) or not self._address:
+        if not self._ready.wait(self._startup_timeout_s) or not self._address:
             self.stop()
             tail = "\n".join(self.output)
             raise RuntimeError(
-                f"{' '.join(self._cmd)} did not start within {startup_timeout_s} s "
+                f"{' '.join(self._cmd)} did not start within {self._startup_timeout_s} s "
                 f"({self._spawn_error or 'no listening line'}); its output:\n{tail}"
             )
+        return self.info()
 
     def _own(self) -> None:
         """Spawn the server, read its output, and end the actor if the server dies on its own."""
+        pipes = self._pipes or SecretPipes({})
         try:
             proc = subprocess.Popen(
                 self._cmd,
@@ -160,13 +184,15 @@ class ServerActor:
                 env=self._env,
                 text=True,
                 bufsize=1,
+                pass_fds=pipes.fds,
                 preexec_fn=_die_with_parent,
             )
         except OSError as err:
+            pipes.close()
             self._spawn_error = err
             self._ready.set()
-            remove_private_dir(self._secrets)
             return
+        pipes.send()
         self._proc = proc
         assert proc.stdout is not None
         for line in proc.stdout:
@@ -180,10 +206,8 @@ class ServerActor:
                 if host in ("0.0.0.0", "[::]", "::"):
                     host = self._node_ip
                 self._address = f"{host}:{m.group(2)}"
-                remove_private_dir(self._secrets)  # read at start: no longer needed
                 self._ready.set()
         code = proc.wait()
-        remove_private_dir(self._secrets)
         self._ready.set()
         if self._address and not self._stopping.is_set():
             print(
