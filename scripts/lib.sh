@@ -25,7 +25,8 @@ ensure_system_packages() {
   fi
 }
 
-# Create the repo's venv and install the Python client with its extras (plus any given extras).
+# Create the repo's venv and install the Python client with its extras (plus any given extras),
+# at the exact versions of client-py/constraints.txt (pyproject.toml holds only ranges).
 ensure_python_env() {
   local extras="dev,torch,rsl-rl,gymnasium,mujoco,ray"
   for e in "$@"; do extras="$extras,$e"; done
@@ -33,5 +34,5 @@ ensure_python_env() {
     python3 -m venv "$VENV"
   fi
   "$VENV/bin/python" -m pip install -q --upgrade pip
-  "$VENV/bin/python" -m pip install -q -e "./client-py[$extras]"
+  "$VENV/bin/python" -m pip install -q -c client-py/constraints.txt -e "./client-py[$extras]"
 }

@@ -46,8 +46,8 @@ if [ -f client-py/pyproject.toml ]; then
   tar -c --exclude=build --exclude='*.egg-info' --exclude=_assets --exclude=_proto \
     --exclude=__pycache__ --exclude='.*_cache' client-py | tar -x -C "$installed/src"
   ln -s "$PWD/assets" "$PWD/proto" "$installed/src/"
-  "$VENV/bin/pip" install -q --no-deps --no-build-isolation --target "$installed/site" \
-    "$installed/src/client-py"
+  "$VENV/bin/pip" install -q --no-deps --no-build-isolation -c client-py/constraints.txt \
+    --target "$installed/site" "$installed/src/client-py"
   packaged_tests="$PWD/client-py/tests/test_packaged_assets.py"
   (cd "$installed" && PYTHONPATH="$installed/site" UNIGAIT_INSTALLED_ROOT="$installed/site" \
     "$VENV/bin/python" -m pytest -q -p no:cacheprovider "$packaged_tests")

@@ -2,8 +2,9 @@
 
 They have one home, ``assets/`` in the repository (``assets/recipes/*.toml``,
 ``assets/milestones.toml``, ``assets/go2/go2.urdf``), which the Rust crates read too. The
-package's build (``setup.py``) links them into ``unigait/_assets/`` for an editable install and
-copies them into a wheel, so an installed package reads the same files.
+package's build step (``client-py/src/unigait_build.py``) links them into ``unigait/_assets/``
+for an editable install and copies them into a wheel, so an installed package reads the same
+files.
 """
 
 from __future__ import annotations

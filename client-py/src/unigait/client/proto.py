@@ -1,4 +1,4 @@
-"""Access to the generated protobuf and gRPC modules (built from ../proto by setup.py)."""
+"""Access to the generated protobuf and gRPC modules (built from ../proto by the package build)."""
 
 from __future__ import annotations
 

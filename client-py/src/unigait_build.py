@@ -1,10 +1,12 @@
-"""Build step: the gRPC stubs from ../proto; recipes, milestones and the Go2 URDF from ../assets.
+"""The package's build step: the gRPC stubs from ../proto, the data files from ../assets.
 
-The proto is the single source of the wire format; assets/ the single home of the data files.
-
-The generated modules land in ``src/unigait/_proto/v1/`` (git-ignored) before the normal
-``build_py`` copies the package, so both ``pip install ./client-py`` and editable installs see them.
-Set ``UNIGAIT_PROTO_DIR`` to build from a proto tree elsewhere.
+``build_py`` (named in pyproject.toml) generates the stubs and links the recipes, milestones
+and Go2 URDF before the usual build: the proto stays the single source of the wire format and
+assets/ the single home of the data files. Nothing runs on import: only a build (``pip
+install``, editable or not, ``pip wheel``, ``python -m build``) runs :class:`BuildPyWithStubs`.
+The generated modules land in ``src/unigait/_proto/v1/`` (git-ignored), and the packages they
+add join the build's list there. This module is not installed. Set ``UNIGAIT_PROTO_DIR`` to
+build from a proto tree elsewhere.
 """
 
 from __future__ import annotations
@@ -15,10 +17,12 @@ import shutil
 import tempfile
 from pathlib import Path
 
-from setuptools import setup
 from setuptools.command.build_py import build_py
 
-HERE = Path(__file__).resolve().parent
+#: client-py/ (this file is in its src/).
+HERE = Path(__file__).resolve().parents[1]
+#: Packages the build step creates, which discovery at configuration time cannot see yet.
+GENERATED_PACKAGES = ("unigait._proto", "unigait._proto.v1", "unigait._assets")
 #: The project's data files the package carries (recipes, milestones, the Go2 robot model: the
 #: URDF with its licence and notes, no meshes): their home is assets/.
 ASSETS = ("recipes", "milestones.toml", "go2")
@@ -97,16 +101,15 @@ def link_assets() -> None:
 
 
 class BuildPyWithStubs(build_py):
-    """``build_py`` that generates the stubs first."""
+    """``build_py`` that generates the stubs and links the data files first."""
 
     def run(self) -> None:
-        """Generate the stubs, then build as usual."""
+        """Generate the stubs, link the assets, add their packages, then build as usual."""
         generate_stubs()
         link_assets()
+        # A fresh checkout has none of them when setuptools discovers the packages.
+        packages = list(self.packages or [])
+        packages += [p for p in GENERATED_PACKAGES if p not in packages]
+        self.packages = packages
+        self.distribution.packages = packages
         super().run()
-
-
-# Generate before setup() so that package discovery already sees unigait._proto.
-generate_stubs()
-link_assets()
-setup(cmdclass={"build_py": BuildPyWithStubs})
