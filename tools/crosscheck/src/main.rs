@@ -700,24 +700,71 @@ enabled = false
     J::obj(vec![("samples", J::Arr(samples))])
 }
 
-fn main() {
-    let mut only: Vec<String> = Vec::new();
+/// Every scenario, in output order.
+const SCENARIOS: [&str; 12] = [
+    "robot",
+    "task",
+    "step_hip",
+    "step_thigh",
+    "step_calf",
+    "stand",
+    "drop",
+    "trot_forward",
+    "trot_backward",
+    "free_float_roll",
+    "free_float_pitch",
+    "observations",
+];
+
+fn usage() -> String {
+    format!(
+        "usage: unigait-crosscheck [--armature KG_M2] [--min-link-inertia KG_M2] [--substeps N] \
+         [--pgs N] [SCENARIO ...]\nscenarios (default: all): {}",
+        SCENARIOS.join(" ")
+    )
+}
+
+/// What the command line asks for: the scenarios (empty: all) and the physics overrides.
+/// `Ok(None)` for `--help`.
+fn parse_args(
+    args: impl IntoIterator<Item = String>,
+) -> Result<Option<(Vec<String>, Overrides)>, String> {
+    let mut only = Vec::new();
     let mut o = Overrides::default();
-    let mut args = std::env::args().skip(1);
+    let mut args = args.into_iter();
     while let Some(a) = args.next() {
-        let mut value = |name: &str| -> f32 {
-            args.next()
-                .and_then(|v| v.parse().ok())
-                .unwrap_or_else(|| panic!("{name} needs a number"))
+        let mut value = |name: &str| -> Result<f64, String> {
+            let v = args.next().ok_or(format!("{name} needs a value"))?;
+            v.parse::<f64>()
+                .ok()
+                .filter(|x| x.is_finite() && *x >= 0.0)
+                .ok_or(format!("{name}: expected a number >= 0, got `{v}`"))
         };
         match a.as_str() {
-            "--armature" => o.armature = Some(value("--armature")),
-            "--min-link-inertia" => o.min_link_inertia = Some(value("--min-link-inertia")),
-            "--substeps" => o.substeps = Some(value("--substeps") as usize),
-            "--pgs" => o.pgs = Some(value("--pgs") as usize),
-            _ => only.push(a),
+            "-h" | "--help" => return Ok(None),
+            "--armature" => o.armature = Some(value("--armature")? as f32),
+            "--min-link-inertia" => o.min_link_inertia = Some(value("--min-link-inertia")? as f32),
+            "--substeps" => o.substeps = Some(value("--substeps")? as usize),
+            "--pgs" => o.pgs = Some(value("--pgs")? as usize),
+            name if SCENARIOS.contains(&name) => only.push(a),
+            other => return Err(format!("unknown scenario or option `{other}`")),
         }
     }
+    Ok(Some((only, o)))
+}
+
+fn main() {
+    let (only, o) = match parse_args(std::env::args().skip(1)) {
+        Ok(Some(parsed)) => parsed,
+        Ok(None) => {
+            println!("{}", usage());
+            return;
+        }
+        Err(e) => {
+            eprintln!("unigait-crosscheck: {e}\n{}", usage());
+            std::process::exit(2);
+        }
+    };
     OVERRIDES.set(o).expect("set once");
     let want = |name: &str| only.is_empty() || only.iter().any(|o| o == name);
     let mut sections: Vec<(&str, J)> = Vec::new();
@@ -738,7 +785,50 @@ fn main() {
     add("free_float_roll", &|| free_float(&[0, 6], 0.5));
     add("free_float_pitch", &|| free_float(&[1, 4, 7, 10], 0.5));
     add("observations", &observations);
+    // Every name the command line accepts ran (SCENARIOS and the list above agree).
+    let wanted = SCENARIOS.iter().filter(|name| want(name)).count();
+    assert_eq!(
+        sections.len(),
+        wanted,
+        "SCENARIOS and the scenarios run differ"
+    );
     let mut out = String::new();
     J::obj(sections).write(&mut out);
     println!("{out}");
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(args: &[&str]) -> Result<Option<(Vec<String>, Overrides)>, String> {
+        parse_args(args.iter().map(|a| a.to_string()))
+    }
+
+    #[test]
+    fn scenarios_and_overrides_are_read() {
+        let (only, o) = parse(&["--armature", "0.0005", "stand", "--substeps", "8", "drop"])
+            .expect("valid")
+            .expect("not help");
+        assert_eq!(only, ["stand", "drop"]);
+        assert_eq!(o.armature, Some(0.0005));
+        assert_eq!(o.substeps, Some(8));
+        assert_eq!((o.min_link_inertia, o.pgs), (None, None));
+        let (all, _) = parse(&[]).expect("valid").expect("not help");
+        assert!(all.is_empty());
+    }
+
+    #[test]
+    fn a_misspelt_scenario_or_a_bad_value_is_an_error_not_a_missing_section() {
+        let err = parse(&["stnad"]).expect_err("unknown");
+        assert!(err.contains("`stnad`"), "{err}");
+        assert!(
+            parse(&["--armature"])
+                .expect_err("no value")
+                .contains("needs a value")
+        );
+        assert!(parse(&["--pgs", "-1"]).is_err());
+        assert!(parse(&["--substeps", "x"]).is_err());
+        assert!(parse(&["--help", "stnad"]).expect("help").is_none());
+    }
 }
