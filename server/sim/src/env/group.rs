@@ -8,7 +8,7 @@ use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rapier3d::math::{Pose, Rotation, Vec3};
 
-use crate::physics::{ActuatorParams, RobotState, RobotWorld};
+use crate::physics::{ActuatorParams, PhysicsWorld, RobotState};
 use crate::robot::{NUM_FEET, NUM_JOINTS, RobotModel};
 use crate::task::{
     self, LABEL_DIM, OBS_DIM, PRIVILEGED_DIM, Randomization, RewardInputs, RewardTerm, TaskContext,
@@ -32,9 +32,9 @@ pub struct StageTimes {
     pub task: f64,
 }
 
-/// Envs sharing one rapier world.
+/// Envs sharing one physics world (rapier's or the articulated engine, per `physics.engine`).
 pub struct EnvGroup {
-    world: RobotWorld,
+    world: PhysicsWorld,
     envs: Vec<EnvState>,
     states: Vec<RobotState>,
     actuators: Vec<ActuatorParams>,
@@ -74,7 +74,7 @@ fn env_rng(seed: u64, index: u32) -> ChaCha8Rng {
 impl EnvGroup {
     /// A group of envs `first .. first + count`, all reset.
     pub fn new(sh: &Shared, first: usize, count: usize, seed: u64) -> Self {
-        let world = RobotWorld::new(
+        let world = PhysicsWorld::new(
             sh.model,
             count,
             sh.terrain.collider(),
@@ -115,7 +115,7 @@ impl EnvGroup {
     }
 
     /// The physics world (read-only).
-    pub fn world(&self) -> &RobotWorld {
+    pub fn world(&self) -> &PhysicsWorld {
         &self.world
     }
 
@@ -140,7 +140,7 @@ impl EnvGroup {
 
     /// Mutable world, for tests that poke the physics.
     #[doc(hidden)]
-    pub fn world_mut(&mut self) -> &mut RobotWorld {
+    pub fn world_mut(&mut self) -> &mut PhysicsWorld {
         &mut self.world
     }
 

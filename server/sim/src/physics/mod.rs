@@ -1,8 +1,9 @@
-//! Physics: robots in rapier worlds, actuation, state read-back.
+//! Physics: robots in rapier worlds or the articulated engine, actuation, state read-back.
 
 mod actuation;
 pub mod articulated;
 mod counters;
+mod engine;
 mod inertia;
 mod joint_state;
 mod params;
@@ -11,6 +12,7 @@ mod world;
 
 pub use actuation::{ActuatorParams, FRICTION_RAMP_SPEED, passive_torque, pd_torque};
 pub use counters::PhysicsCounters;
+pub use engine::{EngineKind, PhysicsWorld};
 pub use joint_state::{joint_angle, joint_speed};
 pub use params::PhysicsParams;
 pub use robot_state::RobotState;

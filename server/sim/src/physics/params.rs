@@ -1,10 +1,16 @@
 //! The physics' numerical settings (time step, solver schedule, inertia floor), part of the
 //! task config's `[physics]` table.
 
+use super::engine::EngineKind;
+
 /// Numerical settings of the physics.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct PhysicsParams {
+    /// The dynamics: `"rapier"` (impulse joints, default) or `"articulated"` (reduced
+    /// coordinates, issue 34). The articulated engine reads `dt` and `gravity` only; the solver
+    /// schedule and the inertia floor below are rapier's.
+    pub engine: EngineKind,
     /// Physics time step (s). Default 0.005 (200 Hz).
     pub dt: f32,
     /// Rapier solver iterations per step, i.e. substeps of its soft-TGS solver. Default 2:
@@ -39,6 +45,7 @@ pub struct PhysicsParams {
 impl Default for PhysicsParams {
     fn default() -> Self {
         Self {
+            engine: EngineKind::Rapier,
             dt: 0.005,
             solver_iterations: 2,
             pgs_iterations: 3,

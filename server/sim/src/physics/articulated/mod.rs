@@ -1,8 +1,10 @@
 //! Reduced-coordinate dynamics of an articulated robot (issue 34): a floating-base tree of
 //! revolute joints, its forward kinematics, the joint-space mass matrix (composite rigid body
 //! algorithm, armature on the joint diagonal), the bias forces (recursive Newton-Euler) and the
-//! mass matrix's tree-sparse `L^T D L` factorisation. rapier stays the collision engine; the step
-//! that will use this (contacts, limits, integration) is not built yet.
+//! mass matrix's tree-sparse `L^T D L` factorisation, and the step built on them
+//! ([`ArticulatedWorld`]: PD torques, damping and friction, contacts from parry's queries and
+//! joint limits solved in joint space, semi-implicit Euler). rapier (parry) stays the collision
+//! engine; `physics.engine = "articulated"` selects this one.
 //!
 //! Layout: one [`ArticulatedTree`] (the constants, structure of arrays, shared by every robot)
 //! and one [`Workspace`] per robot (every state-dependent buffer, sized once): no call allocates.
@@ -24,13 +26,17 @@ mod factor;
 mod kinematics;
 mod mass_matrix;
 mod scalar;
+mod solver;
 pub mod spatial;
 mod tree;
 mod workspace;
+mod world;
 
 #[cfg(test)]
 mod test;
 
 pub use scalar::Real;
+pub use solver::{RowKind, Rows, SoftConstraint};
 pub use tree::{ArticulatedTree, BaseJoint, BodySpec, NO_PARENT, RevoluteSpec};
 pub use workspace::Workspace;
+pub use world::ArticulatedWorld;

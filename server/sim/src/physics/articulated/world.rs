@@ -1,0 +1,927 @@
+//! A group of robots stepped with the articulated dynamics: the same operations as the rapier
+//! [`RobotWorld`](crate::physics::RobotWorld), over one shared terrain shape.
+//!
+//! One physics step of one robot (semi-implicit Euler, step `h`):
+//!
+//! 1. kinematics, mass matrix (armature on the joint diagonal, the robot's own payload on the
+//!    trunk), bias forces `c`, factor `M = L^T D L`;
+//! 2. joint torques `tau`: the PD law clipped to the effort limit plus passive damping and
+//!    Coulomb friction (the rapier engine's [`pd_torque`] and [`passive_torque`]);
+//! 3. unconstrained velocity `v_free = v + h M^-1 (tau - c)`;
+//! 4. contact rows from parry's contact manifolds between each robot collider and the terrain
+//!    (one normal and two friction rows per point, friction `mu` from the robot's parameters),
+//!    one row per joint at or heading into a stop; projected Gauss-Seidel ([`Rows::solve`]);
+//! 5. `q <- q (+) h v+`: positions and joint angles by Euler, the base quaternion by the
+//!    exponential map of the body-frame angular velocity, renormalised.
+//!
+//! Storage is contiguous per world (`qpos`, `qvel` and the per-robot parameters as flat arrays,
+//! one shared tree and one scratch workspace): a step allocates nothing once parry's contact
+//! caches have grown to the contacts a robot meets.
+
+use std::time::Instant;
+
+use rapier3d::math::{Mat3 as GMat3, Pose, Rotation, Vec3};
+use rapier3d::parry::query::{
+    ContactManifold, ContactManifoldsWorkspace, DefaultQueryDispatcher, PersistentQueryDispatcher,
+};
+use rapier3d::prelude::{ColliderBuilder, LockedAxes, SharedShape};
+
+use super::solver::{RowKind, Rows, SoftConstraint};
+use super::spatial::{self, cross, dot, mat_vec};
+use super::tree::{ArticulatedTree, NO_PARENT};
+use super::workspace::Workspace;
+use crate::physics::actuation::{ActuatorParams, passive_torque, pd_torque};
+use crate::physics::counters::PhysicsCounters;
+use crate::physics::params::PhysicsParams;
+use crate::physics::robot_state::RobotState;
+use crate::physics::world::{CONTACT_FORCE_THRESHOLD, RobotPhysicalParams};
+use crate::robot::{ColliderRole, NUM_FEET, NUM_JOINTS, RobotModel, Shape};
+
+/// Distance (m) within which parry reports a contact point; closer points become speculative
+/// rows (a foot at 2 m/s moves 10 mm in a 5 ms step).
+const CONTACT_PREDICTION: f32 = 0.01;
+/// A joint closer than this to a stop (rad), or heading into it within a step, gets a row.
+const LIMIT_PREDICTION: f64 = 0.02;
+/// Contact points kept per robot per step (the deepest first when a collider reports more).
+const MAX_CONTACT_POINTS: usize = 32;
+/// Contact points kept per collider.
+const MAX_POINTS_PER_COLLIDER: usize = 8;
+/// Gauss-Seidel sweeps at most per step, and the impulse change (N s) that ends them early.
+const MAX_SWEEPS: usize = 50;
+const SWEEP_TOLERANCE: f64 = 1e-7;
+/// Diagonal put on a locked base DoF (test hook), which is decoupled from the others.
+const LOCKED_DIAGONAL: f64 = 1.0;
+
+/// A robot collider of the articulated world.
+#[derive(Clone, Debug)]
+struct ColliderSpec {
+    /// Body in tree order.
+    body: usize,
+    /// Body in model order (for the penalised-body bit set).
+    model_body: usize,
+    /// Pose in the body frame.
+    local: Pose,
+    shape: SharedShape,
+    role: ColliderRole,
+}
+
+/// parry's persistent contact data of one (robot, collider) pair with the terrain.
+#[derive(Default)]
+struct PairCache {
+    manifolds: Vec<ContactManifold<(), ()>>,
+    workspace: Option<ContactManifoldsWorkspace>,
+}
+
+/// Contact forces of one robot over its last physics step.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct ContactSummary {
+    foot_force: [f32; NUM_FEET],
+    trunk_force: f32,
+    head_force: f32,
+    penalised_bodies: u32,
+    penalised_contacts: u32,
+    other_contacts: u32,
+}
+
+/// Robots integrated in reduced coordinates over one terrain shape.
+pub struct ArticulatedWorld {
+    tree: ArticulatedTree<f64>,
+    ws: Workspace<f64>,
+    nq: usize,
+    nv: usize,
+    count: usize,
+    dt: f64,
+    gravity: [f64; 3],
+    soft: SoftConstraint,
+    /// Generalised positions, `count x nq` (MuJoCo's free joint, see [`ArticulatedTree`]).
+    qpos: Vec<f64>,
+    /// Generalised velocities, `count x nv`.
+    qvel: Vec<f64>,
+    /// Per robot: trunk mass, centre of mass and inertia (payload and offset applied).
+    trunk_mass: Vec<f64>,
+    trunk_com: Vec<[f64; 3]>,
+    trunk_inertia: Vec<[f64; 6]>,
+    /// Per robot: armature on each joint, friction coefficient with the terrain.
+    armature: Vec<f64>,
+    friction: Vec<f64>,
+    /// Per robot: base DoFs held still (test hook).
+    locked: Vec<[bool; 6]>,
+    /// Whether the joint stops act (always, but for the energy test).
+    limits: bool,
+    faulted: Vec<bool>,
+    summary: Vec<ContactSummary>,
+    /// DoF of each action-order joint.
+    joint_dof: [usize; NUM_JOINTS],
+    /// Tree body of each model body, and the reverse.
+    tree_body: Vec<usize>,
+    model_body: Vec<usize>,
+    lower: [f64; NUM_JOINTS],
+    upper: [f64; NUM_JOINTS],
+    effort: [f32; NUM_JOINTS],
+    colliders: Vec<ColliderSpec>,
+    terrain: SharedShape,
+    terrain_pose: Pose,
+    /// `count x colliders.len()` contact caches.
+    pairs: Vec<PairCache>,
+    rows: Rows,
+    /// Scratch, `nv` each.
+    force: Vec<f64>,
+    velocity: Vec<f64>,
+    /// Gauss-Seidel sweeps, summed over robot steps since creation.
+    pub sweeps: u64,
+    /// Time by stage, in the rapier world's terms: `torques_s` the dynamics up to the
+    /// unconstrained velocity, `collision_detection_s` (= `narrow_phase_s`) parry's queries and
+    /// the contact rows, `assembly_s` the rows' responses and targets, `resolution_s` the
+    /// Gauss-Seidel sweeps (`solver_s` both), `update_s` the integration.
+    counters: PhysicsCounters,
+}
+
+fn shape_of(shape: &Shape) -> SharedShape {
+    match *shape {
+        Shape::Box { size } => SharedShape::cuboid(size.x / 2.0, size.y / 2.0, size.z / 2.0),
+        // Cylinders become capsules, as in the rapier world (legged_gym's
+        // `replace_cylinder_with_capsule`).
+        Shape::Cylinder { radius, length } => SharedShape::capsule_z(length / 2.0, radius),
+        Shape::Sphere { radius } => SharedShape::ball(radius),
+    }
+}
+
+fn widen3(v: Vec3) -> [f64; 3] {
+    [f64::from(v.x), f64::from(v.y), f64::from(v.z)]
+}
+
+fn narrow3(v: [f64; 3]) -> Vec3 {
+    Vec3::new(v[0] as f32, v[1] as f32, v[2] as f32)
+}
+
+/// A rotation matrix (row-major) as a quaternion.
+fn rotation_of(m: &[f64; 9]) -> Rotation {
+    let cols = GMat3::from_cols(
+        narrow3([m[0], m[3], m[6]]),
+        narrow3([m[1], m[4], m[7]]),
+        narrow3([m[2], m[5], m[8]]),
+    );
+    Rotation::from_mat3(&cols).normalize()
+}
+
+impl ArticulatedWorld {
+    /// A world with `count` robots of `model` over the terrain `terrain` (its shape and pose are
+    /// used; friction comes from each robot's parameters). Robots start at the origin in the
+    /// default pose, at rest.
+    pub fn new(
+        model: &RobotModel,
+        count: usize,
+        terrain: ColliderBuilder,
+        params: &PhysicsParams,
+    ) -> Self {
+        // RobotModel::new has checked that the bodies form one tree from the trunk.
+        let tree = ArticulatedTree::from_robot(model, 0.0)
+            .expect("a robot model's bodies form a tree from the trunk");
+        let ws = Workspace::new(&tree);
+        let (nq, nv) = (tree.nq(), tree.nv());
+        let n = model.bodies.len();
+        let tree_body: Vec<usize> = model
+            .bodies
+            .iter()
+            .map(|b| {
+                tree.body_names()
+                    .iter()
+                    .position(|name| *name == b.name)
+                    .unwrap_or(0)
+            })
+            .collect();
+        let mut model_body = vec![0; n];
+        for (m, &t) in tree_body.iter().enumerate() {
+            model_body[t] = m;
+        }
+        let joint_dof = std::array::from_fn(|j| {
+            let name = &model.joints[j].name;
+            let k = tree
+                .joint_names()
+                .iter()
+                .position(|n| n == name)
+                .unwrap_or(j);
+            tree.base_dofs() + k
+        });
+        let colliders = model
+            .bodies
+            .iter()
+            .enumerate()
+            .flat_map(|(b, body)| {
+                let t = tree_body[b];
+                body.colliders.iter().map(move |c| ColliderSpec {
+                    body: t,
+                    model_body: b,
+                    local: c.geometry.origin,
+                    shape: shape_of(&c.geometry.shape),
+                    role: c.role,
+                })
+            })
+            .collect::<Vec<_>>();
+        let nominal = RobotPhysicalParams::nominal(model);
+        let trunk = &model.bodies[0].inertial;
+        let i = trunk.inertia;
+        let mut world = Self {
+            nq,
+            nv,
+            count,
+            dt: f64::from(params.dt),
+            gravity: [0.0, 0.0, -f64::from(params.gravity)],
+            soft: {
+                // MuJoCo clamps the time constant to at least two steps.
+                let mut soft = SoftConstraint::default();
+                soft.timeconst = soft.timeconst.max(2.0 * f64::from(params.dt));
+                soft
+            },
+            qpos: vec![0.0; count * nq],
+            qvel: vec![0.0; count * nv],
+            trunk_mass: vec![f64::from(trunk.mass); count],
+            trunk_com: vec![widen3(trunk.com); count],
+            trunk_inertia: vec![
+                [
+                    i.col(0).x,
+                    i.col(1).y,
+                    i.col(2).z,
+                    i.col(1).x,
+                    i.col(2).x,
+                    i.col(2).y,
+                ]
+                .map(f64::from);
+                count
+            ],
+            armature: vec![f64::from(nominal.armature); count],
+            friction: vec![f64::from(nominal.friction); count],
+            locked: vec![[false; 6]; count],
+            limits: true,
+            faulted: vec![false; count],
+            summary: vec![ContactSummary::default(); count],
+            joint_dof,
+            tree_body,
+            model_body,
+            lower: model.joints.each_ref().map(|j| f64::from(j.sim_lower)),
+            upper: model.joints.each_ref().map(|j| f64::from(j.sim_upper)),
+            effort: model.joints.each_ref().map(|j| j.effort),
+            pairs: (0..count * colliders.len())
+                .map(|_| PairCache::default())
+                .collect(),
+            colliders,
+            terrain: terrain.shape.clone(),
+            terrain_pose: terrain.position,
+            rows: Rows::new(nv, 3 * MAX_CONTACT_POINTS + NUM_JOINTS),
+            force: vec![0.0; nv],
+            velocity: vec![0.0; nv],
+            tree,
+            ws,
+            sweeps: 0,
+            counters: PhysicsCounters::default(),
+        };
+        let q0: [f32; NUM_JOINTS] = std::array::from_fn(|j| model.config.default_joint_pos[j]);
+        for slot in 0..count {
+            world.set_physical_params(model, slot, &nominal);
+            world.set_robot_state(model, slot, Pose::IDENTITY, Vec3::ZERO, Vec3::ZERO, &q0);
+        }
+        world
+    }
+
+    /// Number of robots.
+    pub fn len(&self) -> usize {
+        self.count
+    }
+
+    /// Whether the world holds no robot.
+    pub fn is_empty(&self) -> bool {
+        self.count == 0
+    }
+
+    /// The shared tree (armature zero: each robot's armature is added per step).
+    pub fn tree(&self) -> &ArticulatedTree<f64> {
+        &self.tree
+    }
+
+    /// Robot `slot`'s generalised position and velocity.
+    pub fn state(&self, slot: usize) -> (&[f64], &[f64]) {
+        (
+            &self.qpos[slot * self.nq..(slot + 1) * self.nq],
+            &self.qvel[slot * self.nv..(slot + 1) * self.nv],
+        )
+    }
+
+    /// Apply new physical parameters (payload, centre-of-mass shift, armature, friction) to
+    /// robot `slot`. The actuator part is passed to [`ArticulatedWorld::step`].
+    pub fn set_physical_params(
+        &mut self,
+        model: &RobotModel,
+        slot: usize,
+        params: &RobotPhysicalParams,
+    ) {
+        let trunk = &model.bodies[0].inertial;
+        let mass = f64::from(trunk.mass);
+        let payload = f64::from(params.payload);
+        let scale = (mass + payload) / mass;
+        let i = trunk.inertia;
+        self.trunk_mass[slot] = mass + payload;
+        self.trunk_com[slot] = widen3(trunk.com + params.com_offset);
+        self.trunk_inertia[slot] = [
+            i.col(0).x,
+            i.col(1).y,
+            i.col(2).z,
+            i.col(1).x,
+            i.col(2).x,
+            i.col(2).y,
+        ]
+        .map(|x| f64::from(x) * scale);
+        self.armature[slot] = f64::from(params.armature);
+        self.friction[slot] = f64::from(params.friction);
+    }
+
+    /// Teleport robot `slot`: trunk pose, trunk velocities (world frame, at the trunk origin),
+    /// joint angles; joint speeds are zero. Contacts are forgotten.
+    pub fn set_robot_state(
+        &mut self,
+        _model: &RobotModel,
+        slot: usize,
+        base: Pose,
+        linvel: Vec3,
+        angvel: Vec3,
+        q: &[f32; NUM_JOINTS],
+    ) {
+        let (nq, nv) = (self.nq, self.nv);
+        let qpos = &mut self.qpos[slot * nq..(slot + 1) * nq];
+        let r = base.rotation.normalize();
+        qpos[..3].copy_from_slice(&widen3(base.translation));
+        qpos[3..7].copy_from_slice(&[r.w, r.x, r.y, r.z].map(f64::from));
+        for (j, &k) in self.joint_dof.iter().enumerate() {
+            qpos[k + 1] = f64::from(q[j]);
+        }
+        let qvel = &mut self.qvel[slot * nv..(slot + 1) * nv];
+        qvel.fill(0.0);
+        qvel[..3].copy_from_slice(&widen3(linvel));
+        qvel[3..6].copy_from_slice(&widen3(r.inverse() * angvel));
+        self.faulted[slot] = false;
+        self.summary[slot] = ContactSummary::default();
+        let nc = self.colliders.len();
+        for pair in &mut self.pairs[slot * nc..(slot + 1) * nc] {
+            pair.manifolds.clear();
+            pair.workspace = None;
+        }
+    }
+
+    /// Add `delta` to the velocity of robot `slot`'s trunk (pushes); joint rates are kept, so
+    /// every body gets the same change, as in the rapier world.
+    pub fn add_base_velocity(&mut self, slot: usize, delta: Vec3) {
+        let v = &mut self.qvel[slot * self.nv..slot * self.nv + 3];
+        for (x, d) in v.iter_mut().zip(widen3(delta)) {
+            *x += d;
+        }
+    }
+
+    /// Hold `axes` of robot `slot`'s trunk still (test hook). Translations are the world axes,
+    /// rotations the trunk's own axes (the free joint's DoFs).
+    #[doc(hidden)]
+    pub fn lock_trunk(&mut self, slot: usize, axes: LockedAxes) {
+        let flags = [
+            LockedAxes::TRANSLATION_LOCKED_X,
+            LockedAxes::TRANSLATION_LOCKED_Y,
+            LockedAxes::TRANSLATION_LOCKED_Z,
+            LockedAxes::ROTATION_LOCKED_X,
+            LockedAxes::ROTATION_LOCKED_Y,
+            LockedAxes::ROTATION_LOCKED_Z,
+        ];
+        for (k, f) in flags.iter().enumerate() {
+            self.locked[slot][k] = axes.contains(*f);
+            if self.locked[slot][k] {
+                self.qvel[slot * self.nv + k] = 0.0;
+            }
+        }
+    }
+
+    /// Switch the joint stops off or on (test hook: a free swing that must conserve energy).
+    #[doc(hidden)]
+    pub fn set_limits_enabled(&mut self, on: bool) {
+        self.limits = on;
+    }
+
+    /// Poison robot `slot` with a NaN velocity (test hook for the non-finite guard).
+    #[doc(hidden)]
+    pub fn poison(&mut self, slot: usize) {
+        self.qvel[slot * self.nv] = f64::NAN;
+    }
+
+    /// Whether robot `slot` was found non-finite and frozen since its last reset.
+    pub fn is_faulted(&self, slot: usize) -> bool {
+        self.faulted[slot]
+    }
+
+    /// Kinematics, inertias and velocities of robot `slot` into the scratch workspace.
+    fn kinematics(&mut self, slot: usize) {
+        let (nq, nv) = (self.nq, self.nv);
+        self.tree.forward_kinematics(
+            &mut self.ws,
+            &self.qpos[slot * nq..(slot + 1) * nq],
+            &self.qvel[slot * nv..(slot + 1) * nv],
+        );
+        // The robot's own trunk (payload, centre-of-mass shift) replaces the shared one.
+        let r = self.ws.rotation[0];
+        let com = mat_vec(&r, &self.trunk_com[slot]);
+        let ic = spatial::rotate_symmetric(&r, &self.trunk_inertia[slot]);
+        self.ws.inertia[0] = spatial::inertia_at(self.trunk_mass[slot], &com, &ic);
+    }
+
+    /// Mechanical energy of robot `slot` (J): `v^T M v / 2` (armature included) plus the
+    /// potential energy in gravity (zero at z = 0).
+    pub fn mechanical_energy(&mut self, slot: usize) -> f64 {
+        self.kinematics(slot);
+        self.tree.mass_matrix(&mut self.ws);
+        self.add_armature(slot);
+        let nv = self.nv;
+        let v = &self.qvel[slot * nv..(slot + 1) * nv];
+        self.tree.mul_mass_matrix(&self.ws, v, &mut self.force);
+        let kinetic = 0.5 * dot_n(v, &self.force);
+        let base = self.ws.base_position;
+        let potential: f64 = self
+            .ws
+            .inertia
+            .iter()
+            .map(|i| {
+                // h = m c with c relative to the base origin.
+                let height = i[0] * base[2] + i[3];
+                -self.gravity[2] * height
+            })
+            .sum();
+        kinetic + potential
+    }
+
+    fn add_armature(&mut self, slot: usize) {
+        let a = self.armature[slot];
+        for k in self.tree.base_dofs()..self.nv {
+            let diag = self.tree.row_start[k + 1] - 1;
+            self.ws.mass_matrix[diag] += a;
+        }
+    }
+
+    /// Decouple the locked base DoFs of robot `slot` in the mass matrix (unit diagonal, no
+    /// coupling), so the solve gives the rest of the tree's dynamics with them held.
+    fn apply_locks(&mut self, slot: usize) {
+        let locked = self.locked[slot];
+        if !locked.iter().any(|&l| l) {
+            return;
+        }
+        for k in 0..self.nv {
+            let (range, cols) = self.tree.row(k);
+            for (e, &i) in range.zip(cols) {
+                let (lk, li) = (k < 6 && locked[k], i < 6 && locked[i]);
+                if lk || li {
+                    self.ws.mass_matrix[e] = if i == k { LOCKED_DIAGONAL } else { 0.0 };
+                }
+            }
+        }
+    }
+
+    /// One physics step of every robot towards `targets` (slot-major, NUM_JOINTS per robot).
+    /// Writes the motor torques into `torques` (same layout).
+    pub fn step(
+        &mut self,
+        _model: &RobotModel,
+        targets: &[f32],
+        actuators: &[ActuatorParams],
+        torques: &mut [f32],
+    ) {
+        let t0 = Instant::now();
+        for (slot, act) in actuators.iter().enumerate().take(self.count) {
+            let i = slot * NUM_JOINTS;
+            self.step_robot(
+                slot,
+                &targets[i..i + NUM_JOINTS],
+                act,
+                &mut torques[i..i + NUM_JOINTS],
+            );
+        }
+        let c = &mut self.counters;
+        c.world_steps += 1;
+        c.robot_steps += self.count as u64;
+        c.step_s += t0.elapsed().as_secs_f64();
+    }
+
+    /// Time by stage summed over this world's steps since it was built (see the field's docs).
+    pub fn counters(&self) -> &PhysicsCounters {
+        &self.counters
+    }
+
+    fn step_robot(
+        &mut self,
+        slot: usize,
+        targets: &[f32],
+        act: &ActuatorParams,
+        torques: &mut [f32],
+    ) {
+        let (nq, nv, h) = (self.nq, self.nv, self.dt);
+        let finite = self.qpos[slot * nq..(slot + 1) * nq]
+            .iter()
+            .chain(&self.qvel[slot * nv..(slot + 1) * nv])
+            .all(|x| x.is_finite());
+        let t0 = Instant::now();
+        if self.faulted[slot] || !finite {
+            // Frozen until the env layer resets it, like a body rapier quarantined.
+            self.faulted[slot] = true;
+            torques.fill(0.0);
+            self.summary[slot] = ContactSummary::default();
+            return;
+        }
+        self.kinematics(slot);
+        self.tree.mass_matrix(&mut self.ws);
+        self.add_armature(slot);
+        self.apply_locks(slot);
+        self.tree.bias_forces(&mut self.ws, &self.gravity);
+        self.tree.factor(&mut self.ws);
+
+        // Joint torques, then v_free = v + h M^-1 (tau - c).
+        let qpos = &self.qpos[slot * nq..(slot + 1) * nq];
+        let qvel = &self.qvel[slot * nv..(slot + 1) * nv];
+        for (f, &c) in self.force.iter_mut().zip(self.ws.bias()) {
+            *f = -c;
+        }
+        for (j, &k) in self.joint_dof.iter().enumerate() {
+            let (q, qd) = (qpos[k + 1] as f32, qvel[k] as f32);
+            let motor = pd_torque(targets[j], q, qd, act.kp, act.kd, self.effort[j]);
+            torques[j] = motor;
+            self.force[k] += f64::from(motor + passive_torque(qd, act.damping, act.friction));
+        }
+        let locked = self.locked[slot];
+        for (k, f) in self.force.iter_mut().enumerate().take(6) {
+            if locked[k] {
+                *f = 0.0;
+            }
+        }
+        self.tree.solve(&self.ws, &mut self.force);
+        for ((v, &v0), &a) in self.velocity.iter_mut().zip(qvel).zip(&self.force) {
+            *v = v0 + h * a;
+        }
+
+        let t1 = Instant::now();
+        self.rows.clear();
+        self.contact_rows(slot);
+        let points = self.rows.len() / 3;
+        self.limit_rows(slot);
+        let t2 = Instant::now();
+        let mut t3 = t2;
+        let mut summary = ContactSummary::default();
+        if !self.rows.is_empty() {
+            // Responses W_i = M^-1 J_i^T, then each row's regulariser and target.
+            for i in 0..self.rows.len() {
+                let range = i * nv..(i + 1) * nv;
+                let jac = &mut self.rows.jacobian[range.clone()];
+                for (x, &l) in jac.iter_mut().zip(&locked) {
+                    if l {
+                        *x = 0.0;
+                    }
+                }
+                let resp = &mut self.rows.response[range];
+                resp.copy_from_slice(jac);
+                self.tree.solve(&self.ws, resp);
+            }
+            self.finish_rows(slot);
+            t3 = Instant::now();
+            self.sweeps +=
+                self.rows
+                    .solve(&mut self.velocity, MAX_SWEEPS, SWEEP_TOLERANCE) as u64;
+            self.summarise(&mut summary);
+        }
+        let t4 = Instant::now();
+        self.summary[slot] = summary;
+        for (k, v) in self.velocity.iter_mut().enumerate().take(6) {
+            if locked[k] {
+                *v = 0.0;
+            }
+        }
+        self.integrate(slot);
+        let t5 = Instant::now();
+        let c = &mut self.counters;
+        let secs = |a: Instant, b: Instant| (b - a).as_secs_f64();
+        c.torques_s += secs(t0, t1);
+        c.collision_detection_s += secs(t1, t2);
+        c.narrow_phase_s += secs(t1, t2);
+        c.assembly_s += secs(t2, t3);
+        c.resolution_s += secs(t3, t4);
+        c.solver_s += secs(t2, t4);
+        c.update_s += secs(t4, t5);
+        c.contacts += points as u64;
+        c.constraints += self.rows.len() as u64;
+    }
+
+    /// Contact rows of robot `slot` from parry's manifolds against the terrain.
+    fn contact_rows(&mut self, slot: usize) {
+        let nc = self.colliders.len();
+        let base = self.ws.base_position;
+        let mu = self.friction[slot];
+        let dispatcher = DefaultQueryDispatcher;
+        let mut points = 0;
+        for c in 0..nc {
+            let spec = &self.colliders[c];
+            let b = spec.body;
+            let body_pose = Pose::from_parts(
+                narrow3(self.ws.body_position(b)),
+                rotation_of(&self.ws.rotation[b]),
+            );
+            let pose = body_pose * spec.local;
+            let pair = &mut self.pairs[slot * nc + c];
+            let pos12 = pose.inverse() * self.terrain_pose;
+            if dispatcher
+                .contact_manifolds(
+                    &pos12,
+                    &*spec.shape,
+                    &*self.terrain,
+                    CONTACT_PREDICTION,
+                    &mut pair.manifolds,
+                    &mut pair.workspace,
+                )
+                .is_err()
+            {
+                continue;
+            }
+            let mut kept = 0;
+            for manifold in &pair.manifolds {
+                let normal = -(pose.rotation * manifold.local_n1);
+                let n = widen3(normal);
+                let (t1, t2) = tangents(&n);
+                for point in &manifold.points {
+                    if point.dist >= CONTACT_PREDICTION
+                        || kept >= MAX_POINTS_PER_COLLIDER
+                        || points >= MAX_CONTACT_POINTS
+                        || self.rows.room() < 3
+                    {
+                        continue;
+                    }
+                    kept += 1;
+                    points += 1;
+                    let p = widen3(pose.transform_point(point.local_p1));
+                    let rel = [p[0] - base[0], p[1] - base[1], p[2] - base[2]];
+                    let dist = f64::from(point.dist);
+                    let tag = c as u32;
+                    let (ni, jac) = self.rows.push(RowKind::Unilateral, tag);
+                    point_jacobian(&self.tree, &self.ws, b, &rel, &n, jac);
+                    // The distance rides in the target until `finish_rows` (it is needed with
+                    // the row's velocity).
+                    self.rows.target[ni] = dist;
+                    for t in [t1, t2] {
+                        let (ti, jac) = self.rows.push(RowKind::Friction { normal: ni, mu }, tag);
+                        point_jacobian(&self.tree, &self.ws, b, &rel, &t, jac);
+                        self.rows.target[ti] = dist;
+                    }
+                }
+            }
+        }
+    }
+
+    /// One row per joint at or heading into a stop: `J = +e_k` at the lower stop (distance
+    /// `q - lower`), `-e_k` at the upper one.
+    fn limit_rows(&mut self, slot: usize) {
+        let (nq, nv, h) = (self.nq, self.nv, self.dt);
+        if !self.limits {
+            return;
+        }
+        for j in 0..NUM_JOINTS {
+            let k = self.joint_dof[j];
+            let q = self.qpos[slot * nq + k + 1];
+            let qd = self.qvel[slot * nv + k];
+            for (sign, dist) in [(1.0, q - self.lower[j]), (-1.0, self.upper[j] - q)] {
+                let closing = (-sign * qd * h).max(0.0);
+                if dist < LIMIT_PREDICTION + closing && self.rows.room() > 0 {
+                    let (i, jac) = self.rows.push(RowKind::Unilateral, u32::MAX);
+                    jac[k] = sign;
+                    self.rows.target[i] = dist;
+                }
+            }
+        }
+    }
+
+    /// Regularisers and targets of the rows: `target` holds each row's signed distance on
+    /// entry (its contact's, for a friction row).
+    fn finish_rows(&mut self, slot: usize) {
+        let nv = self.nv;
+        let h = self.dt;
+        let (b, k) = self.soft.reference_gains();
+        let qvel = &self.qvel[slot * nv..(slot + 1) * nv];
+        for i in 0..self.rows.len() {
+            let jac = &self.rows.jacobian[i * nv..(i + 1) * nv];
+            let dist = self.rows.target[i];
+            let vel = dot_n(jac, qvel);
+            let friction = matches!(self.rows.kind[i], RowKind::Friction { .. });
+            if dist > 0.0 {
+                // Apart: speculative and hard. Friction only acts through its normal row.
+                let target = if friction { 0.0 } else { -dist / h };
+                self.rows.finish(i, None, 1.0, target);
+            } else {
+                let d = self.soft.impedance(-dist);
+                let (a_ref, ratio) = if friction {
+                    (-b * vel, self.soft.impratio)
+                } else {
+                    (-b * vel - k * d * dist, 1.0)
+                };
+                self.rows.finish(i, Some(d), ratio, vel + h * a_ref);
+            }
+        }
+    }
+
+    /// Contact forces of the solved rows into `out`.
+    fn summarise(&self, out: &mut ContactSummary) {
+        let h = self.dt;
+        let mut other = 0u64;
+        for i in 0..self.rows.len() {
+            if self.rows.kind[i] != RowKind::Unilateral || self.rows.tag(i) == u32::MAX {
+                continue;
+            }
+            let c = self.rows.tag(i) as usize;
+            let spec = &self.colliders[c];
+            let force = (self.rows.impulse(i) / h) as f32;
+            let touching = self.rows.target[i] <= 0.0 || force > 0.0;
+            match spec.role {
+                ColliderRole::Trunk => out.trunk_force += force,
+                ColliderRole::Head => out.head_force += force,
+                ColliderRole::Foot(f) => out.foot_force[f as usize] += force,
+                ColliderRole::Penalised => {
+                    let bit = 1 << spec.model_body;
+                    if force > CONTACT_FORCE_THRESHOLD && out.penalised_bodies & bit == 0 {
+                        out.penalised_bodies |= bit;
+                        out.penalised_contacts += 1;
+                    }
+                }
+                ColliderRole::Other => {
+                    // Counted once per collider in contact, as the rapier world counts pairs.
+                    if touching && other & (1 << c) == 0 {
+                        other |= 1 << c;
+                        out.other_contacts += 1;
+                    }
+                }
+            }
+        }
+    }
+
+    /// `q <- q (+) h v+` with `v+` in `self.velocity`; a non-finite result freezes the robot.
+    fn integrate(&mut self, slot: usize) {
+        let (nq, nv, h) = (self.nq, self.nv, self.dt);
+        let qpos = &mut self.qpos[slot * nq..(slot + 1) * nq];
+        let qvel = &mut self.qvel[slot * nv..(slot + 1) * nv];
+        qvel.copy_from_slice(&self.velocity);
+        for k in 0..3 {
+            qpos[k] += h * qvel[k];
+        }
+        // q <- q * exp(h w / 2), w in the base's own axes.
+        let w = [qvel[3], qvel[4], qvel[5]];
+        let angle = h * dot(&w, &w).sqrt();
+        let (s, c) = (0.5 * angle).sin_cos();
+        let e = if angle > 1e-12 {
+            let f = s / (angle / h);
+            [c, w[0] * f, w[1] * f, w[2] * f]
+        } else {
+            [1.0, 0.5 * h * w[0], 0.5 * h * w[1], 0.5 * h * w[2]]
+        };
+        let q = [qpos[3], qpos[4], qpos[5], qpos[6]];
+        let mut out = [
+            q[0] * e[0] - q[1] * e[1] - q[2] * e[2] - q[3] * e[3],
+            q[0] * e[1] + q[1] * e[0] + q[2] * e[3] - q[3] * e[2],
+            q[0] * e[2] - q[1] * e[3] + q[2] * e[0] + q[3] * e[1],
+            q[0] * e[3] + q[1] * e[2] - q[2] * e[1] + q[3] * e[0],
+        ];
+        let norm = out.iter().map(|x| x * x).sum::<f64>().sqrt();
+        for x in &mut out {
+            *x /= norm;
+        }
+        qpos[3..7].copy_from_slice(&out);
+        for k in 6..nv {
+            qpos[k + 1] += h * qvel[k];
+        }
+        if !qpos.iter().chain(qvel.iter()).all(|x| x.is_finite()) {
+            self.faulted[slot] = true;
+        }
+    }
+
+    /// Read the pose, velocities, joints and feet of robot `slot` into `s` (contacts untouched).
+    pub fn read_kinematics(&mut self, model: &RobotModel, slot: usize, s: &mut RobotState) {
+        self.kinematics(slot);
+        let (nq, nv) = (self.nq, self.nv);
+        let qpos = &self.qpos[slot * nq..(slot + 1) * nq];
+        let qvel = &self.qvel[slot * nv..(slot + 1) * nv];
+        let rot = Rotation::from_xyzw(
+            qpos[4] as f32,
+            qpos[5] as f32,
+            qpos[6] as f32,
+            qpos[3] as f32,
+        );
+        s.base_pos = narrow3([qpos[0], qpos[1], qpos[2]]);
+        s.base_rot = rot;
+        s.base_linvel = narrow3([qvel[0], qvel[1], qvel[2]]);
+        s.base_angvel = narrow3(mat_vec(&self.ws.rotation[0], &[qvel[3], qvel[4], qvel[5]]));
+        for (j, &k) in self.joint_dof.iter().enumerate() {
+            s.q[j] = qpos[k + 1] as f32;
+            s.qd[j] = qvel[k] as f32;
+        }
+        s.max_joint_gap = 0.0;
+        s.extra_iterations = false;
+        s.faulted = self.faulted[slot];
+        for (f, foot) in model.feet.iter().enumerate() {
+            let b = self.tree_body[foot.body];
+            let r = self.ws.rotation[b];
+            let p = spatial::add(
+                &self.ws.body_position(b),
+                &mat_vec(&r, &widen3(foot.offset)),
+            );
+            let (w, v_origin) = self.ws.body_velocity(b);
+            let arm = [
+                p[0] - self.ws.body_position(b)[0],
+                p[1] - self.ws.body_position(b)[1],
+                p[2] - self.ws.body_position(b)[2],
+            ];
+            s.foot_pos[f] = narrow3(p);
+            s.foot_vel[f] = narrow3(spatial::add(&v_origin, &cross(&w, &arm)));
+        }
+    }
+
+    /// Read every robot's state into `out` (one entry per slot), with the contact forces of the
+    /// last physics step.
+    pub fn read_states(&mut self, model: &RobotModel, out: &mut [RobotState]) {
+        let t0 = Instant::now();
+        for (slot, s) in out.iter_mut().enumerate().take(self.count) {
+            self.read_kinematics(model, slot, s);
+            s.clear_contacts();
+            let c = &self.summary[slot];
+            s.foot_force = c.foot_force;
+            s.trunk_force = c.trunk_force;
+            s.head_force = c.head_force;
+            s.penalised_bodies = c.penalised_bodies;
+            s.penalised_contacts = c.penalised_contacts;
+            s.other_contacts = c.other_contacts;
+            s.faulted = self.faulted[slot];
+        }
+        self.counters.read_back_s += t0.elapsed().as_secs_f64();
+    }
+
+    /// World poses of all bodies of robot `slot`, model order (trunk first).
+    pub fn body_poses(&mut self, slot: usize) -> Vec<Pose> {
+        self.kinematics(slot);
+        self.tree_body
+            .iter()
+            .map(|&b| self.pose_in(&self.ws, b))
+            .collect()
+    }
+
+    /// Pose of tree body `b` in the kinematics of `ws`.
+    pub fn pose_in(&self, ws: &Workspace<f64>, b: usize) -> Pose {
+        Pose::from_parts(narrow3(ws.body_position(b)), rotation_of(&ws.rotation[b]))
+    }
+
+    /// Tree body of model body `b` (and back with [`Self::model_body_of`]).
+    pub fn tree_body_of(&self, b: usize) -> usize {
+        self.tree_body[b]
+    }
+
+    /// Model body of tree body `b`.
+    pub fn model_body_of(&self, b: usize) -> usize {
+        self.model_body[b]
+    }
+}
+
+/// `sum a_i b_i`.
+#[inline]
+fn dot_n(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+/// Two unit tangents completing the unit normal `n` to an orthonormal basis.
+fn tangents(n: &[f64; 3]) -> ([f64; 3], [f64; 3]) {
+    // Duff et al., "Building an orthonormal basis, revisited" (2017).
+    let sign = if n[2] >= 0.0 { 1.0 } else { -1.0 };
+    let a = -1.0 / (sign + n[2]);
+    let b = n[0] * n[1] * a;
+    (
+        [1.0 + sign * n[0] * n[0] * a, sign * b, -sign * n[0]],
+        [b, sign + n[1] * n[1] * a, -n[1]],
+    )
+}
+
+/// Jacobian row of the velocity along `dir` of the point of body `body` at `rel` (relative to
+/// the base origin, world axes): over the body's ancestor DoFs, `dir . (S_lin + S_ang x rel)`.
+fn point_jacobian(
+    tree: &ArticulatedTree<f64>,
+    ws: &Workspace<f64>,
+    body: usize,
+    rel: &[f64; 3],
+    dir: &[f64; 3],
+    out: &mut [f64],
+) {
+    let arm = cross(rel, dir);
+    let mut k = if body == 0 {
+        tree.base_dofs().checked_sub(1).unwrap_or(NO_PARENT)
+    } else {
+        tree.base_dofs() + body - 1
+    };
+    while k != NO_PARENT {
+        let s = &ws.motion[k];
+        out[k] = dir[0] * s[3]
+            + dir[1] * s[4]
+            + dir[2] * s[5]
+            + arm[0] * s[0]
+            + arm[1] * s[1]
+            + arm[2] * s[2];
+        k = tree.dof_parent[k];
+    }
+}
