@@ -21,8 +21,16 @@ from setuptools.command.build_py import build_py
 
 #: client-py/ (this file is in its src/).
 HERE = Path(__file__).resolve().parents[1]
-#: Packages the build step creates, which discovery at configuration time cannot see yet.
-GENERATED_PACKAGES = ("unigait._proto", "unigait._proto.v1", "unigait._assets")
+#: Packages the build step creates, which discovery at configuration time cannot see yet. The
+#: data folders under _assets are named too: setuptools warns about (and plans to drop) data in
+#: an importable folder that is not a listed package.
+GENERATED_PACKAGES = (
+    "unigait._proto",
+    "unigait._proto.v1",
+    "unigait._assets",
+    "unigait._assets.go2",
+    "unigait._assets.recipes",
+)
 #: The project's data files the package carries (recipes, milestones, the Go2 robot model: the
 #: URDF with its licence and notes, no meshes): their home is assets/.
 ASSETS = ("recipes", "milestones.toml", "go2")
