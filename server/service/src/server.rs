@@ -158,15 +158,11 @@ pub fn check_token(token: &str) -> Result<(), ServeError> {
     Ok(())
 }
 
-/// Whether `a` and `b` are equal, in time that depends on their lengths only.
+/// Whether `a` and `b` are equal, in time that depends on their lengths only (`subtle`, whose
+/// comparison the optimiser cannot turn into an early exit).
 fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
-    let mut diff = a.len() ^ b.len();
-    for i in 0..a.len().max(b.len()) {
-        let x = a.get(i).copied().unwrap_or(0);
-        let y = b.get(i).copied().unwrap_or(0);
-        diff |= usize::from(x ^ y);
-    }
-    std::hint::black_box(diff) == 0
+    use subtle::ConstantTimeEq;
+    a.ct_eq(b).into()
 }
 
 /// Checks `authorization: Bearer <token>` when a token is configured.
@@ -517,9 +513,9 @@ pub async fn serve(
         .http2_max_pending_accept_reset_streams(Some(transport.max_pending_accept_reset_streams))
         .http2_max_local_error_reset_streams(Some(transport.max_local_error_reset_streams));
     if let Some(age) = transport.max_connection_age {
-        builder = builder
-            .max_connection_age(age)
-            .max_connection_age_grace(options.drain_timeout);
+        // No `max_connection_age_grace`: with it, tonic sends no GOAWAY at the age but cuts the
+        // connection at age + grace, calls in flight and all.
+        builder = builder.max_connection_age(age);
     }
     if let Some((cert, key)) = &options.tls {
         builder = builder.tls_config(
@@ -583,26 +579,36 @@ pub async fn serve(
     Ok(result?)
 }
 
-/// Resolves on SIGINT or SIGTERM.
+/// Resolves on SIGINT or SIGTERM; a second SIGINT then exits the process at once (130).
+#[cfg(unix)]
 pub async fn shutdown_signal() {
-    let ctrl_c = async {
-        let _ = tokio::signal::ctrl_c().await;
+    use tokio::signal::unix::{SignalKind, signal};
+    // One SIGINT stream for both: it is registered before the first signal, so a second one
+    // that comes right after is not missed.
+    let (Ok(mut interrupts), Ok(mut terms)) = (
+        signal(SignalKind::interrupt()),
+        signal(SignalKind::terminate()),
+    ) else {
+        warn!("cannot listen for SIGINT/SIGTERM; stop the server with SIGKILL");
+        return std::future::pending().await;
     };
-    #[cfg(unix)]
-    let term = async {
-        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
-            Ok(mut s) => {
-                s.recv().await;
-            }
-            Err(_) => std::future::pending::<()>().await,
-        }
-    };
-    #[cfg(not(unix))]
-    let term = std::future::pending::<()>();
     tokio::select! {
-        _ = ctrl_c => {},
-        _ = term => {},
+        _ = interrupts.recv() => {},
+        _ = terms.recv() => {},
     }
+    info!("shutdown requested; a second Ctrl-C exits at once");
+    tokio::spawn(async move {
+        if interrupts.recv().await.is_some() {
+            warn!("second interrupt: exiting without draining");
+            std::process::exit(130);
+        }
+    });
+}
+
+/// Resolves on Ctrl-C; a second one then exits the process at once (130).
+#[cfg(not(unix))]
+pub async fn shutdown_signal() {
+    let _ = tokio::signal::ctrl_c().await;
     info!("shutdown requested; a second Ctrl-C exits at once");
     tokio::spawn(async {
         if tokio::signal::ctrl_c().await.is_ok() {
@@ -615,4 +621,76 @@ pub async fn shutdown_signal() {
 /// Whether serving on `addr` stays on this machine.
 pub fn is_loopback(addr: &SocketAddr) -> bool {
     addr.ip().is_loopback()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tonic::Code;
+
+    const TOKEN: &str = "0123456789abcdef-unit-token";
+
+    fn check(token: Option<&str>, header: Option<&str>) -> Result<(), Code> {
+        let mut request = Request::new(());
+        if let Some(h) = header {
+            request
+                .metadata_mut()
+                .insert("authorization", h.parse().expect("header"));
+        }
+        let mut interceptor = TokenCheck(token.map(Arc::from));
+        tonic::service::Interceptor::call(&mut interceptor, request)
+            .map(|_| ())
+            .map_err(|s| s.code())
+    }
+
+    #[test]
+    fn tokens_compare_equal_only_when_identical() {
+        let t = TOKEN.as_bytes();
+        assert!(constant_time_eq(t, t));
+        assert!(constant_time_eq(b"", b""));
+        // Every prefix, every extension, and a change at every position differs.
+        for n in 0..t.len() {
+            assert!(!constant_time_eq(&t[..n], t), "prefix of {n}");
+            assert!(!constant_time_eq(t, &t[..n]), "prefix of {n}, swapped");
+            let mut changed = t.to_vec();
+            changed[n] ^= 1;
+            assert!(!constant_time_eq(&changed, t), "byte {n} changed");
+        }
+        let longer = [t, b"x"].concat();
+        assert!(!constant_time_eq(&longer, t));
+        assert!(!constant_time_eq(t, &longer));
+        // Zero bytes past the end are not "equal padding".
+        let padded = [t, &[0u8]].concat();
+        assert!(!constant_time_eq(&padded, t));
+    }
+
+    #[test]
+    fn the_interceptor_wants_exactly_bearer_and_the_token() {
+        assert_eq!(check(None, None), Ok(()));
+        assert_eq!(check(Some(TOKEN), Some(&format!("Bearer {TOKEN}"))), Ok(()));
+        for wrong in [
+            format!("Bearer {TOKEN}x"),
+            format!("Bearer {}", &TOKEN[..TOKEN.len() - 1]),
+            format!("bearer {TOKEN}"),
+            format!("Bearer  {TOKEN}"),
+            TOKEN.to_string(),
+            "Bearer ".to_string(),
+        ] {
+            assert_eq!(
+                check(Some(TOKEN), Some(&wrong)),
+                Err(Code::Unauthenticated),
+                "{wrong:?}"
+            );
+        }
+        assert_eq!(check(Some(TOKEN), None), Err(Code::Unauthenticated));
+    }
+
+    #[test]
+    fn accept_backoff_doubles_to_a_second_and_resets() {
+        let mut b = AcceptBackoff::default();
+        let waits: Vec<u64> = (0..10).map(|_| b.next_wait().as_millis() as u64).collect();
+        assert_eq!(waits, [5, 10, 20, 40, 80, 160, 320, 640, 1000, 1000]);
+        b.reset();
+        assert_eq!(b.next_wait(), Duration::from_millis(5));
+    }
 }

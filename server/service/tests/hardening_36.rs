@@ -27,12 +27,16 @@ impl SpawnedServer {
     /// `address_space_mib` (a safety net: a server that tries to allocate gigabytes fails
     /// instead of taking the machine's memory).
     fn start(args: &[&str], address_space_mib: u64) -> Self {
+        Self::start_under(args, &format!("ulimit -v {}", address_space_mib << 10))
+    }
+
+    /// Start it with `args` after the shell commands `limits` (`ulimit ...`).
+    fn start_under(args: &[&str], limits: &str) -> Self {
         let exe = env!("CARGO_BIN_EXE_unigait-server");
         let mut child = Command::new("sh")
             .arg("-c")
             .arg(format!(
-                "ulimit -v {}; exec \"$0\" serve --addr 127.0.0.1:0 \"$@\"",
-                address_space_mib << 10
+                "{limits}; exec \"$0\" serve --addr 127.0.0.1:0 \"$@\""
             ))
             .arg(exe)
             .args(args)
@@ -724,4 +728,417 @@ async fn issue_36_a_stream_whose_client_does_not_read_ends() {
     );
     sender.abort();
     drop(replies);
+}
+
+// --- Coded in round one, tested here: accept back-off, connection age, keepalive, drain, the
+// second Ctrl-C, reflection.
+
+/// CPU seconds (user + system) process `pid` has used, from /proc/<pid>/stat (in clock ticks
+/// of 1/100 s, the Linux default USER_HZ).
+fn cpu_seconds(pid: u32) -> f64 {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).expect("stat");
+    let fields: Vec<&str> = stat
+        .rsplit(')')
+        .next()
+        .expect("fields")
+        .split_whitespace()
+        .collect();
+    let ticks: u64 =
+        fields[11].parse::<u64>().expect("utime") + fields[12].parse::<u64>().expect("stime");
+    ticks as f64 / 100.0
+}
+
+fn open_fds(pid: u32) -> usize {
+    std::fs::read_dir(format!("/proc/{pid}/fd"))
+        .map(|d| d.count())
+        .unwrap_or(0)
+}
+
+/// A server with 64 file descriptors is sent 150 connections (its listen backlog holds 128): once its descriptors are gone,
+/// accept fails, and the server waits between attempts (5 ms doubling to 1 s) instead of
+/// retrying at once, so it uses little CPU while exhausted (measured: its CPU time over 3 s);
+/// once the connections go, it serves again.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn issue_36_accept_backs_off_while_out_of_file_descriptors() {
+    let server = SpawnedServer::start_under(
+        &[
+            "--threads",
+            "1",
+            "--max-connections",
+            "1000",
+            "--handshake-timeout",
+            "120",
+        ],
+        "ulimit -n 64",
+    );
+    let (addr, pid) = (server.addr, server.child.id());
+    let clients = tokio::task::spawn_blocking(move || {
+        (0..150)
+            .map(|_| std::net::TcpStream::connect(addr).expect("connect (the backlog holds them)"))
+            .collect::<Vec<_>>()
+    })
+    .await
+    .expect("join");
+    // Exhausted: every descriptor in use (hang guard: 30 s).
+    let guard = std::time::Instant::now() + Duration::from_secs(30);
+    while open_fds(pid) < 63 {
+        assert!(
+            std::time::Instant::now() < guard,
+            "only {} fds open",
+            open_fds(pid)
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    // Let the back-off reach its longer waits, then measure 3 s of exhaustion.
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    let before = cpu_seconds(pid);
+    tokio::time::sleep(Duration::from_secs(3)).await;
+    let used = cpu_seconds(pid) - before;
+    assert!(open_fds(pid) >= 63, "no longer exhausted");
+    eprintln!("CPU time over 3 s while out of file descriptors: {used:.2} s");
+    assert!(used < 0.3, "the server spun: {used:.2} CPU s in 3 s");
+    drop(clients);
+    let served = tokio::time::timeout(Duration::from_secs(30), async {
+        server
+            .client()
+            .await
+            .get_server_info(v1::GetServerInfoRequest {})
+            .await
+    })
+    .await
+    .expect("served again within 30 s (hang guard)");
+    served.expect("served once the connections are gone");
+}
+
+/// The HTTP/2 client preface and an empty SETTINGS frame.
+const H2_PREFACE: &[u8] = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n\0\0\0\x04\0\0\0\0\0";
+const H2_PING: u8 = 6;
+const H2_GOAWAY: u8 = 7;
+
+/// A raw HTTP/2 connection (no client library: it answers nothing but SETTINGS).
+fn h2_connect(addr: SocketAddr) -> std::net::TcpStream {
+    use std::io::Write;
+    let mut s = std::net::TcpStream::connect(addr).expect("connect");
+    s.write_all(H2_PREFACE).expect("preface");
+    s
+}
+
+/// Reads one frame from `s` (its type, flags and payload) before `guard`; None on EOF, error
+/// or time-out. Acknowledges SETTINGS and answers PINGs, as a live client does.
+fn h2_frame(s: &mut std::net::TcpStream, guard: std::time::Instant) -> Option<(u8, u8)> {
+    use std::io::{Read, Write};
+    let left = guard.saturating_duration_since(std::time::Instant::now());
+    if left.is_zero() {
+        return None;
+    }
+    s.set_read_timeout(Some(left)).expect("timeout");
+    let mut header = [0u8; 9];
+    s.read_exact(&mut header).ok()?;
+    let len = u32::from_be_bytes([0, header[0], header[1], header[2]]) as usize;
+    let mut payload = vec![0u8; len];
+    s.read_exact(&mut payload).ok()?;
+    let (kind, flags) = (header[3], header[4]);
+    if kind == 4 && flags & 1 == 0 {
+        s.write_all(&[0, 0, 0, 4, 1, 0, 0, 0, 0]).ok()?;
+    }
+    if kind == H2_PING && flags & 1 == 0 {
+        s.write_all(&[0, 0, 8, H2_PING, 1, 0, 0, 0, 0]).ok()?;
+        s.write_all(&payload).ok()?;
+    }
+    Some((kind, flags))
+}
+
+/// Reads frames until one of type `kind` (true) or EOF, an error or `guard` (false).
+fn h2_wait_for(s: &mut std::net::TcpStream, kind: u8, guard: std::time::Instant) -> bool {
+    std::iter::from_fn(|| h2_frame(s, guard)).any(|(k, _)| k == kind)
+}
+
+/// Whether the server closes `s` before `guard` (reading and answering frames meanwhile).
+fn h2_closed(s: &mut std::net::TcpStream, guard: std::time::Instant) -> bool {
+    while h2_frame(s, guard).is_some() {}
+    !guard
+        .saturating_duration_since(std::time::Instant::now())
+        .is_zero()
+}
+
+/// `--max-connection-age 1`: a connection gets GOAWAY after a second and, with no call in
+/// flight, is then closed. Without the age no GOAWAY ever comes; with tonic's age "grace" (set
+/// until this test) none came either: the connection was cut at age + grace instead.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn issue_36_a_connection_past_its_maximum_age_is_sent_away() {
+    let server = in_process(unigait_server::ServeOptions {
+        threads: 1,
+        transport: unigait_server::TransportLimits {
+            max_connection_age: Some(Duration::from_secs(1)),
+            ..Default::default()
+        },
+        ..Default::default()
+    })
+    .await;
+    let addr = server.addr;
+    let (goaway, closed) = tokio::task::spawn_blocking(move || {
+        let mut s = h2_connect(addr);
+        let guard = std::time::Instant::now() + Duration::from_secs(20);
+        let goaway = h2_wait_for(&mut s, H2_GOAWAY, guard);
+        (goaway, h2_closed(&mut s, guard))
+    })
+    .await
+    .expect("join");
+    assert!(goaway, "no GOAWAY within 20 s");
+    assert!(closed, "the connection stayed open after its grace period");
+}
+
+/// Accepted connections carry TCP keepalive (read back from the server's own socket: the
+/// server runs in this process) and the server sends HTTP/2 PINGs at the keepalive interval.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn issue_36_connections_have_tcp_and_http2_keepalive() {
+    use std::os::fd::BorrowedFd;
+    let server = in_process(unigait_server::ServeOptions {
+        threads: 1,
+        keepalive: Duration::from_secs(1),
+        ..Default::default()
+    })
+    .await;
+    let addr = server.addr;
+    let mut client = h2_connect(addr);
+    let local = client.local_addr().expect("local");
+    let (client, ping) = tokio::task::spawn_blocking(move || {
+        let guard = std::time::Instant::now() + Duration::from_secs(20);
+        let ping = h2_wait_for(&mut client, H2_PING, guard);
+        (client, ping)
+    })
+    .await
+    .expect("join");
+    assert!(ping, "no HTTP/2 PING within 20 s");
+    // The server's end of this connection, among this process's descriptors.
+    let accepted = std::fs::read_dir("/proc/self/fd")
+        .expect("fds")
+        .filter_map(|e| e.ok()?.file_name().to_str()?.parse::<i32>().ok())
+        .find(|&fd| {
+            // SAFETY: the descriptor is open for this test's whole run (the server holds it)
+            // and is only borrowed for the two address lookups.
+            let fd = unsafe { BorrowedFd::borrow_raw(fd) };
+            let sock = socket2::SockRef::from(&fd);
+            let mine = |a: std::io::Result<socket2::SockAddr>| a.ok().and_then(|a| a.as_socket());
+            mine(sock.local_addr()) == Some(addr) && mine(sock.peer_addr()) == Some(local)
+        })
+        .expect("the accepted socket");
+    // SAFETY: as above.
+    let fd = unsafe { BorrowedFd::borrow_raw(accepted) };
+    let sock = socket2::SockRef::from(&fd);
+    assert!(sock.keepalive().expect("SO_KEEPALIVE"), "no TCP keepalive");
+    assert_eq!(
+        sock.tcp_keepalive_time().expect("TCP_KEEPIDLE"),
+        Duration::from_secs(1)
+    );
+    assert_eq!(
+        sock.tcp_keepalive_interval().expect("TCP_KEEPINTVL"),
+        Duration::from_secs(10)
+    );
+    assert_eq!(sock.tcp_keepalive_retries().expect("TCP_KEEPCNT"), 3);
+    drop(client);
+}
+
+/// A drain seen from outside: health turns NOT_SERVING on a Watch, an open step stream ends
+/// UNAVAILABLE, and `serve` returns once the clients are gone, with a drain deadline (300 s) far
+/// beyond the test's hang guard (30 s), so it cannot pass on the deadline.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn issue_36_a_drain_reports_not_serving_and_ends_without_its_deadline() {
+    use tonic_health::pb::HealthCheckRequest;
+    use tonic_health::pb::health_check_response::ServingStatus;
+    use tonic_health::pb::health_client::HealthClient;
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
+        .await
+        .expect("bind");
+    let addr = listener.local_addr().expect("addr");
+    let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
+    let serving = tokio::spawn(unigait_server::serve(
+        listener,
+        unigait_server::ServeOptions {
+            threads: 1,
+            drain_timeout: Duration::from_secs(300),
+            ..Default::default()
+        },
+        async {
+            let _ = stopped.await;
+        },
+    ));
+    let channel = channel(addr).await;
+    let mut c = SimulatorClient::new(channel.clone());
+    let id = create(&mut c, 1, 1).await;
+    let (tx, requests) = tokio::sync::mpsc::channel(4);
+    let mut replies = c
+        .step_stream(tokio_stream::wrappers::ReceiverStream::new(requests))
+        .await
+        .expect("open")
+        .into_inner();
+    tx.send(step_request(&id, 1)).await.expect("send");
+    replies.message().await.expect("a step").expect("a reply");
+    let mut watch = HealthClient::new(channel.clone())
+        .watch(HealthCheckRequest {
+            service: String::new(),
+        })
+        .await
+        .expect("watch")
+        .into_inner();
+    let first = watch.message().await.expect("status").expect("a status");
+    assert_eq!(first.status, ServingStatus::Serving as i32);
+
+    stop.send(()).expect("the server is running");
+    let next = watch.message().await.expect("status").expect("a status");
+    assert_eq!(next.status, ServingStatus::NotServing as i32);
+    let ended = replies.message().await.expect_err("the stream ends");
+    assert_eq!(ended.code(), Code::Unavailable, "{ended:?}");
+    drop((watch, replies, tx, c, channel));
+    tokio::time::timeout(Duration::from_secs(30), serving)
+        .await
+        .expect("serve returned after the drain, long before its 300 s deadline")
+        .expect("join")
+        .expect("serve returns Ok");
+}
+
+/// The real binary: a first SIGINT drains (health turns NOT_SERVING on a Watch, which holds the
+/// drain open: its deadline is 300 s), a second one ends the process at once with 130.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn issue_36_a_second_sigint_ends_a_draining_server_at_once() {
+    use tonic_health::pb::HealthCheckRequest;
+    use tonic_health::pb::health_check_response::ServingStatus;
+    use tonic_health::pb::health_client::HealthClient;
+    let mut server = SpawnedServer::start(&["--threads", "1", "--drain-timeout", "300"], 4096);
+    let pid = server.child.id().to_string();
+    let interrupt = || {
+        let sent = Command::new("kill")
+            .args(["-INT", &pid])
+            .status()
+            .expect("kill");
+        assert!(sent.success());
+    };
+    let mut watch = HealthClient::new(channel(server.addr).await)
+        .watch(HealthCheckRequest {
+            service: String::new(),
+        })
+        .await
+        .expect("watch")
+        .into_inner();
+    let first = watch.message().await.expect("status").expect("a status");
+    assert_eq!(first.status, ServingStatus::Serving as i32);
+    interrupt();
+    let next = watch.message().await.expect("status").expect("a status");
+    assert_eq!(next.status, ServingStatus::NotServing as i32);
+    assert!(
+        server.child.try_wait().expect("wait").is_none(),
+        "the first SIGINT did not drain"
+    );
+    // Signal again until it exits (hang guard: 10 s); a server that ignored the second SIGINT
+    // would drain for 300 s.
+    let mut status = None;
+    for _ in 0..50 {
+        interrupt();
+        tokio::time::sleep(Duration::from_millis(200)).await;
+        status = server.child.try_wait().expect("wait");
+        if status.is_some() {
+            break;
+        }
+    }
+    let status = status.expect("the server still runs after a second SIGINT");
+    assert_eq!(status.code(), Some(130), "{status:?}");
+    drop(watch);
+}
+
+/// Reflection v1alpha (what older grpcurl and Postman ask for) is served beside v1; beyond
+/// loopback both need the token, on loopback neither does.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn issue_36_reflection_v1alpha_is_served_and_needs_the_token_beyond_loopback() {
+    use tonic_reflection::pb::{v1, v1alpha};
+    async fn list_v1alpha(addr: SocketAddr, token: bool) -> Result<Vec<String>, Status> {
+        use v1alpha::server_reflection_request::MessageRequest;
+        use v1alpha::server_reflection_response::MessageResponse;
+        let request = v1alpha::ServerReflectionRequest {
+            host: String::new(),
+            message_request: Some(MessageRequest::ListServices(String::new())),
+        };
+        let stream = tokio_stream::iter(vec![request]);
+        let request = if token {
+            with_token(stream)
+        } else {
+            tonic::Request::new(stream)
+        };
+        let mut client =
+            v1alpha::server_reflection_client::ServerReflectionClient::new(channel(addr).await);
+        let mut replies = client.server_reflection_info(request).await?.into_inner();
+        match replies.message().await?.and_then(|r| r.message_response) {
+            Some(MessageResponse::ListServicesResponse(list)) => {
+                Ok(list.service.into_iter().map(|s| s.name).collect())
+            }
+            other => panic!("{other:?}"),
+        }
+    }
+    async fn list_v1(addr: SocketAddr, token: bool) -> Result<Vec<String>, Status> {
+        use v1::server_reflection_request::MessageRequest;
+        use v1::server_reflection_response::MessageResponse;
+        let request = v1::ServerReflectionRequest {
+            host: String::new(),
+            message_request: Some(MessageRequest::ListServices(String::new())),
+        };
+        let stream = tokio_stream::iter(vec![request]);
+        let request = if token {
+            with_token(stream)
+        } else {
+            tonic::Request::new(stream)
+        };
+        let mut client =
+            v1::server_reflection_client::ServerReflectionClient::new(channel(addr).await);
+        let mut replies = client.server_reflection_info(request).await?.into_inner();
+        match replies.message().await?.and_then(|r| r.message_response) {
+            Some(MessageResponse::ListServicesResponse(list)) => {
+                Ok(list.service.into_iter().map(|s| s.name).collect())
+            }
+            other => panic!("{other:?}"),
+        }
+    }
+    let simulator = "unigait.v1.Simulator".to_string();
+    let remote = in_process(unigait_server::ServeOptions {
+        threads: 1,
+        token: Some(TOKEN.into()),
+        assume_remote: true,
+        ..Default::default()
+    })
+    .await;
+    for (version, refused) in [
+        ("v1alpha", list_v1alpha(remote.addr, false).await),
+        ("v1", list_v1(remote.addr, false).await),
+    ] {
+        let code = refused.expect_err(version).code();
+        assert_eq!(code, Code::Unauthenticated, "{version}");
+    }
+    assert!(
+        list_v1alpha(remote.addr, true)
+            .await
+            .expect("v1alpha")
+            .contains(&simulator)
+    );
+    assert!(
+        list_v1(remote.addr, true)
+            .await
+            .expect("v1")
+            .contains(&simulator)
+    );
+    let local = in_process(unigait_server::ServeOptions {
+        threads: 1,
+        token: Some(TOKEN.into()),
+        ..Default::default()
+    })
+    .await;
+    assert!(
+        list_v1alpha(local.addr, false)
+            .await
+            .expect("v1alpha")
+            .contains(&simulator)
+    );
+    assert!(
+        list_v1(local.addr, false)
+            .await
+            .expect("v1")
+            .contains(&simulator)
+    );
 }
