@@ -213,8 +213,31 @@ impl Rows {
         self.target[i] = target;
     }
 
-    /// Projected Gauss-Seidel from `lambda = 0`: `velocity` holds the unconstrained velocity on
-    /// entry and the constrained one on return. Stops after `max_sweeps` sweeps or when no
+    /// Start from the impulses already in the rows (the last step's, 0 for new rows): project
+    /// them on their bounds and apply them, `velocity += W_i lambda_i`.
+    pub fn warm_start(&mut self, velocity: &mut [f64]) {
+        let nv = self.nv;
+        for i in 0..self.len {
+            let lambda = match self.kind[i] {
+                RowKind::Unilateral => self.impulse[i].max(0.0),
+                RowKind::Friction { normal, mu } => {
+                    let bound = mu * self.impulse[normal];
+                    self.impulse[i].clamp(-bound, bound)
+                }
+            };
+            self.impulse[i] = lambda;
+            if lambda != 0.0 {
+                let w = &self.response[i * nv..(i + 1) * nv];
+                for (v, &wk) in velocity.iter_mut().zip(w) {
+                    *v += lambda * wk;
+                }
+            }
+        }
+    }
+
+    /// Projected Gauss-Seidel from the impulses in the rows (zero, or applied by
+    /// [`Rows::warm_start`]): `velocity` holds the velocity those impulses give on entry and the
+    /// constrained one on return. Stops after `max_sweeps` sweeps or when no
     /// impulse moved by more than `tolerance` (N s) in a sweep; returns the sweeps done.
     pub fn solve(&mut self, velocity: &mut [f64], max_sweeps: usize, tolerance: f64) -> usize {
         let nv = self.nv;
