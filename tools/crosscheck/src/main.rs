@@ -6,6 +6,7 @@
 //! ./target/release/unigait-crosscheck                      # every scenario
 //! ./target/release/unigait-crosscheck stand drop           # only these
 //! ./target/release/unigait-crosscheck --armature 0 stand   # physics overrides, to find causes
+//! ./target/release/unigait-crosscheck --engine articulated  # the articulated engine (issue 34)
 //! ```
 //!
 //! The Python side (`unigait.mujoco`) runs the same scenarios in MuJoCo on the same URDF and
@@ -32,7 +33,9 @@ use std::sync::Arc;
 
 use rapier3d::math::{Pose, Rotation, Vec3};
 use rapier3d::prelude::LockedAxes;
-use unigait_sim::physics::{PhysicsParams, RobotPhysicalParams, RobotState, RobotWorld};
+use unigait_sim::physics::{
+    EngineKind, PhysicsParams, PhysicsWorld, RobotPhysicalParams, RobotState,
+};
 use unigait_sim::prelude::*;
 use unigait_sim::task::{OBSERVATION, euler_pitch};
 
@@ -135,9 +138,10 @@ fn standing_base_z(model: &RobotModel, q: &[f32; NUM_JOINTS], gap: f32) -> f32 {
 }
 
 /// Physics overrides from the command line (`--armature`, `--min-link-inertia`,
-/// `--substeps`, `--pgs`), for finding the cause of a disagreement; none by default.
+/// `--substeps`, `--pgs`, `--engine`), for finding the cause of a disagreement; none by default.
 #[derive(Clone, Copy, Debug, Default)]
 struct Overrides {
+    engine: Option<EngineKind>,
     armature: Option<f32>,
     min_link_inertia: Option<f32>,
     substeps: Option<usize>,
@@ -154,6 +158,7 @@ fn physics_params(gravity: f32) -> PhysicsParams {
     let o = overrides();
     let d = PhysicsParams::default();
     PhysicsParams {
+        engine: o.engine.unwrap_or(d.engine),
         gravity,
         min_link_inertia: o.min_link_inertia.unwrap_or(d.min_link_inertia),
         solver_iterations: o.substeps.unwrap_or(d.solver_iterations),
@@ -165,7 +170,7 @@ fn physics_params(gravity: f32) -> PhysicsParams {
 /// One robot in its own world, with a state buffer.
 struct Rig {
     model: RobotModel,
-    world: RobotWorld,
+    world: PhysicsWorld,
     params: RobotPhysicalParams,
     torques: [f32; NUM_JOINTS],
     states: [RobotState; 1],
@@ -174,7 +179,7 @@ struct Rig {
 impl Rig {
     fn new(gravity: f32) -> Self {
         let model = RobotModel::go2();
-        let world = RobotWorld::new(
+        let world = PhysicsWorld::new(
             &model,
             1,
             Terrain::Flat.collider(),
@@ -252,7 +257,14 @@ fn robot_section() -> J {
         ("armature", num(rig.params.armature)),
         ("joint_damping", num(c.joint_damping)),
         ("joint_friction", num(c.joint_friction)),
-        ("min_link_inertia", num(physics.min_link_inertia)),
+        (
+            "min_link_inertia",
+            // The articulated engine runs the URDF's inertias, without the rapier world's floor.
+            num(match physics.engine {
+                EngineKind::Rapier => physics.min_link_inertia,
+                EngineKind::Articulated => 0.0,
+            }),
+        ),
         ("dt", num(physics.dt)),
         ("mass_kg", num(mass)),
         ("foot_pos_default", J::Arr(feet)),
@@ -640,8 +652,13 @@ enabled = false
 [noise]
 enabled = false
 ";
+    let engine = format!(
+        "physics.engine = \"{}\"",
+        physics_params(9.81).engine.name()
+    );
     let config = TaskConfig::embedded_default()
         .with_overrides(overrides)
+        .and_then(|c| c.with_overrides(&engine))
         .expect("valid override");
     let options = VecEnvOptions {
         num_envs: ENVS,
@@ -718,8 +735,9 @@ const SCENARIOS: [&str; 12] = [
 
 fn usage() -> String {
     format!(
-        "usage: unigait-crosscheck [--armature KG_M2] [--min-link-inertia KG_M2] [--substeps N] \
-         [--pgs N] [SCENARIO ...]\nscenarios (default: all): {}",
+        "usage: unigait-crosscheck [--engine rapier|articulated] [--armature KG_M2] \
+         [--min-link-inertia KG_M2] [--substeps N] [--pgs N] [SCENARIO ...]\nscenarios \
+         (default: all): {}",
         SCENARIOS.join(" ")
     )
 }
@@ -742,6 +760,14 @@ fn parse_args(
         };
         match a.as_str() {
             "-h" | "--help" => return Ok(None),
+            "--engine" => {
+                let v = args.next().ok_or("--engine needs a value")?;
+                o.engine = Some(match v.as_str() {
+                    "rapier" => EngineKind::Rapier,
+                    "articulated" => EngineKind::Articulated,
+                    _ => return Err(format!("--engine: rapier or articulated, got `{v}`")),
+                });
+            }
             "--armature" => o.armature = Some(value("--armature")? as f32),
             "--min-link-inertia" => o.min_link_inertia = Some(value("--min-link-inertia")? as f32),
             "--substeps" => o.substeps = Some(value("--substeps")? as usize),
@@ -813,7 +839,12 @@ mod tests {
         assert_eq!(only, ["stand", "drop"]);
         assert_eq!(o.armature, Some(0.0005));
         assert_eq!(o.substeps, Some(8));
-        assert_eq!((o.min_link_inertia, o.pgs), (None, None));
+        assert_eq!((o.min_link_inertia, o.pgs, o.engine), (None, None, None));
+        let (_, o) = parse(&["--engine", "articulated"])
+            .expect("valid")
+            .expect("not help");
+        assert_eq!(o.engine, Some(EngineKind::Articulated));
+        assert!(parse(&["--engine", "mujoco"]).is_err());
         let (all, _) = parse(&[]).expect("valid").expect("not help");
         assert!(all.is_empty());
     }

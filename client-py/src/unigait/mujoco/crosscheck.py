@@ -48,7 +48,10 @@ def find_crosscheck_binary() -> Path:
 
 
 def run_ours(
-    binary: Path, names: list[str] | None = None, armature: float | None = None
+    binary: Path,
+    names: list[str] | None = None,
+    armature: float | None = None,
+    engine: str | None = None,
 ) -> dict[str, Any]:
     """Run the cross-check driver (the named scenarios, or all) and parse its JSON.
 
@@ -56,8 +59,11 @@ def run_ours(
         binary: The driver (see :func:`find_crosscheck_binary`).
         names: Scenario names; None = all.
         armature: Override the nominal joint armature (kg m^2), to find a difference's cause.
+        engine: ``"rapier"`` or ``"articulated"`` (``physics.engine``); None = the default.
     """
     extra = [] if armature is None else ["--armature", str(armature)]
+    if engine is not None:
+        extra += ["--engine", engine]
     out = subprocess.run(
         [str(binary), *extra, *(names or [])],
         check=True,

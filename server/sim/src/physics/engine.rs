@@ -168,6 +168,24 @@ impl PhysicsWorld {
         }
     }
 
+    /// Mass (kg) and world centre of mass of body `b` (model order) of robot `slot`.
+    pub fn body_mass(&self, slot: usize, b: usize) -> (f32, Vec3) {
+        match self {
+            PhysicsWorld::Rapier(w) => w.body_mass(slot, b),
+            PhysicsWorld::Articulated(w) => w.body_mass(slot, b),
+        }
+    }
+
+    /// Rotational inertia (kg m^2) of robot `slot` taken as rigid about the world axis `axis`
+    /// through its centre of mass, as simulated (rapier: armature and inertia floor on the
+    /// links; articulated: the URDF's links, armature on the joints).
+    pub fn whole_body_inertia(&self, slot: usize, axis: Vec3) -> f32 {
+        match self {
+            PhysicsWorld::Rapier(w) => w.whole_body_inertia(slot, axis),
+            PhysicsWorld::Articulated(w) => w.whole_body_inertia(slot, axis),
+        }
+    }
+
     /// Whether robot `slot` gets extra solver iterations (rapier only).
     pub fn has_extra_iterations(&self, slot: usize) -> bool {
         match self {

@@ -63,6 +63,25 @@ impl<T: Real> Workspace<T> {
         }
     }
 
+    /// A workspace with no buffers (a placeholder while the real one is lent out).
+    pub(super) fn empty() -> Self {
+        Self {
+            base_position: [T::ZERO; 3],
+            rotation: Vec::new(),
+            offset: Vec::new(),
+            motion: Vec::new(),
+            qvel: Vec::new(),
+            velocity: Vec::new(),
+            inertia: Vec::new(),
+            composite: Vec::new(),
+            acceleration: Vec::new(),
+            force: Vec::new(),
+            mass_matrix: Vec::new(),
+            factor: Vec::new(),
+            bias: Vec::new(),
+        }
+    }
+
     /// Position of body `b`'s origin in the world (after [`ArticulatedTree::forward_kinematics`]).
     pub fn body_position(&self, b: usize) -> Vec3<T> {
         add(&self.base_position, &self.offset[b])

@@ -428,17 +428,58 @@ impl ArticulatedWorld {
 
     /// Kinematics, inertias and velocities of robot `slot` into the scratch workspace.
     fn kinematics(&mut self, slot: usize) {
+        let mut ws = std::mem::replace(&mut self.ws, Workspace::empty());
+        self.kinematics_into(slot, &mut ws);
+        self.ws = ws;
+    }
+
+    /// Kinematics, inertias and velocities of robot `slot` into `ws`.
+    pub fn kinematics_into(&self, slot: usize, ws: &mut Workspace<f64>) {
         let (nq, nv) = (self.nq, self.nv);
         self.tree.forward_kinematics(
-            &mut self.ws,
+            ws,
             &self.qpos[slot * nq..(slot + 1) * nq],
             &self.qvel[slot * nv..(slot + 1) * nv],
         );
         // The robot's own trunk (payload, centre-of-mass shift) replaces the shared one.
-        let r = self.ws.rotation[0];
+        let r = ws.rotation[0];
         let com = mat_vec(&r, &self.trunk_com[slot]);
         let ic = spatial::rotate_symmetric(&r, &self.trunk_inertia[slot]);
-        self.ws.inertia[0] = spatial::inertia_at(self.trunk_mass[slot], &com, &ic);
+        ws.inertia[0] = spatial::inertia_at(self.trunk_mass[slot], &com, &ic);
+    }
+
+    /// Mass (kg) and world centre of mass of model body `b` of robot `slot`, as simulated.
+    pub fn body_mass(&self, slot: usize, b: usize) -> (f32, Vec3) {
+        let mut ws = Workspace::new(&self.tree);
+        self.kinematics_into(slot, &mut ws);
+        let i = &ws.inertia[self.tree_body[b]];
+        let c = spatial::scale(1.0 / i[0].max(f64::MIN_POSITIVE), &[i[1], i[2], i[3]]);
+        (i[0] as f32, narrow3(spatial::add(&ws.base_position, &c)))
+    }
+
+    /// Rotational inertia (kg m^2) of robot `slot` taken as rigid, about the world axis `axis`
+    /// (unit) through its centre of mass. The armature is on the joints, so not in it.
+    pub fn whole_body_inertia(&self, slot: usize, axis: Vec3) -> f32 {
+        let mut ws = Workspace::new(&self.tree);
+        self.kinematics_into(slot, &mut ws);
+        let mut total = [0.0; 10];
+        for i in &ws.inertia {
+            spatial::inertia_add(&mut total, i);
+        }
+        // About the base origin; the parallel-axis theorem moves it to the centre of mass.
+        let m = total[0];
+        let c = spatial::scale(1.0 / m, &[total[1], total[2], total[3]]);
+        let a = widen3(axis);
+        let io = [
+            [total[4], total[7], total[8]],
+            [total[7], total[5], total[9]],
+            [total[8], total[9], total[6]],
+        ];
+        let about_origin: f64 = (0..3)
+            .map(|r| a[r] * (0..3).map(|k| io[r][k] * a[k]).sum::<f64>())
+            .sum();
+        let arm = cross(&a, &c);
+        (about_origin - m * dot(&arm, &arm)) as f32
     }
 
     /// Mechanical energy of robot `slot` (J): `v^T M v / 2` (armature included) plus the
