@@ -137,6 +137,7 @@ pub struct ArticulatedWorld {
     limit_impulse: Vec<f64>,
     /// Scratch, `nv` each.
     force: Vec<f64>,
+    pivots: Vec<f64>,
     velocity: Vec<f64>,
     /// Gauss-Seidel sweeps, summed over robot steps since creation.
     pub sweeps: u64,
@@ -282,6 +283,7 @@ impl ArticulatedWorld {
             sources: Vec::with_capacity(MAX_CONTACT_POINTS),
             limit_impulse: vec![0.0; count * 2 * NUM_JOINTS],
             force: vec![0.0; nv],
+            pivots: vec![0.0; nv],
             velocity: vec![0.0; nv],
             tree,
             ws,
@@ -621,7 +623,8 @@ impl ArticulatedWorld {
         let mut t3 = t2;
         let mut summary = ContactSummary::default();
         if !self.rows.is_empty() {
-            // Responses W_i = M^-1 J_i^T, then each row's regulariser and target.
+            // Y_i = L^-T J_i^T per row, then A = Y^T D^-1 Y, each row's regulariser and target.
+            self.tree.pivots(&self.ws, &mut self.pivots);
             for i in 0..self.rows.len() {
                 let range = i * nv..(i + 1) * nv;
                 let jac = &mut self.rows.jacobian[range.clone()];
@@ -630,16 +633,21 @@ impl ArticulatedWorld {
                         *x = 0.0;
                     }
                 }
-                let resp = &mut self.rows.response[range];
-                resp.copy_from_slice(jac);
-                self.tree.solve(&self.ws, resp);
+                let half = &mut self.rows.half[range];
+                half.copy_from_slice(jac);
+                half_solve(&self.tree, &self.ws, half);
             }
+            self.rows.assemble(&self.pivots);
             self.finish_rows(slot);
             t3 = Instant::now();
-            self.rows.warm_start(&mut self.velocity);
-            self.sweeps +=
-                self.rows
-                    .solve(&mut self.velocity, MAX_SWEEPS, SWEEP_TOLERANCE) as u64;
+            self.rows.warm_start(&self.velocity);
+            self.sweeps += self.rows.solve(MAX_SWEEPS, SWEEP_TOLERANCE) as u64;
+            // v+ = v_free + M^-1 J^T lambda.
+            self.rows.generalised_impulse(&mut self.force);
+            self.tree.solve(&self.ws, &mut self.force);
+            for (v, dv) in self.velocity.iter_mut().zip(&self.force) {
+                *v += dv;
+            }
             self.summarise(&mut summary);
             self.store_impulses(slot);
         }
@@ -968,6 +976,21 @@ impl ArticulatedWorld {
 #[inline]
 fn dot_n(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+/// `x <- L^-T x` with the factor `M = L^T D L` in `ws` (the first of the solve's three walks):
+/// for a Jacobian row, nonzero only on a body's ancestor DoFs, the result keeps that sparsity.
+fn half_solve(tree: &ArticulatedTree<f64>, ws: &Workspace<f64>, x: &mut [f64]) {
+    for k in (0..tree.nv()).rev() {
+        let xk = x[k];
+        if xk == 0.0 {
+            continue;
+        }
+        let (start, diag) = (tree.row_start[k], tree.row_start[k + 1] - 1);
+        for e in start..diag {
+            x[tree.row_dofs[e]] -= ws.factor[e] * xk;
+        }
+    }
 }
 
 /// Two unit tangents completing the unit normal `n` to an orthonormal basis.
