@@ -13,7 +13,7 @@ fn main() {
         ..PhysicsParams::default()
     };
     let n = 16;
-    let mut w = ArticulatedWorld::new(&model, n, Terrain::Flat.collider(), &p);
+    let mut w = ArticulatedWorld::new(&model, n, &Terrain::Flat, &p);
     let q0: [f32; NUM_JOINTS] = std::array::from_fn(|j| model.config.default_joint_pos[j]);
     for s in 0..n {
         w.set_robot_state(

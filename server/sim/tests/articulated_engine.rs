@@ -35,7 +35,7 @@ fn default_q(model: &RobotModel) -> [f32; NUM_JOINTS] {
 
 /// One robot in its own articulated world over flat ground, at `z` in the default pose.
 fn lone_robot(model: &RobotModel, z: f32) -> ArticulatedWorld {
-    let mut world = ArticulatedWorld::new(model, 1, Terrain::Flat.collider(), &params());
+    let mut world = ArticulatedWorld::new(model, 1, &Terrain::Flat, &params());
     let base = Pose::from_translation(Vec3::new(0.0, 0.0, z));
     world.set_robot_state(model, 0, base, Vec3::ZERO, Vec3::ZERO, &default_q(model));
     world
@@ -98,7 +98,7 @@ fn free_fall_follows_semi_implicit_euler() {
 fn free_swing(dt: f32) -> (f64, f64) {
     let model = RobotModel::go2();
     let p = PhysicsParams { dt, ..params() };
-    let mut world = ArticulatedWorld::new(&model, 1, Terrain::Flat.collider(), &p);
+    let mut world = ArticulatedWorld::new(&model, 1, &Terrain::Flat, &p);
     world.lock_trunk(0, LockedAxes::all());
     world.set_limits_enabled(false);
     let mut q = default_q(&model);

@@ -179,12 +179,7 @@ struct Rig {
 impl Rig {
     fn new(gravity: f32) -> Self {
         let model = RobotModel::go2();
-        let world = PhysicsWorld::new(
-            &model,
-            1,
-            Terrain::Flat.collider(),
-            &physics_params(gravity),
-        );
+        let world = PhysicsWorld::new(&model, 1, &Terrain::Flat, &physics_params(gravity));
         let mut params = RobotPhysicalParams::nominal(&model);
         if let Some(a) = overrides().armature {
             params.armature = a;

@@ -74,12 +74,7 @@ fn env_rng(seed: u64, index: u32) -> ChaCha8Rng {
 impl EnvGroup {
     /// A group of envs `first .. first + count`, all reset.
     pub fn new(sh: &Shared, first: usize, count: usize, seed: u64) -> Self {
-        let world = PhysicsWorld::new(
-            sh.model,
-            count,
-            sh.terrain.collider(),
-            &sh.ctx.config.physics,
-        );
+        let world = PhysicsWorld::new(sh.model, count, sh.terrain, &sh.ctx.config.physics);
         let nominal = Randomization::nominal(&sh.model.config);
         let envs = (0..count)
             .map(|i| {

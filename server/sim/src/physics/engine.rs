@@ -4,7 +4,7 @@
 //! operations, which [`PhysicsWorld`] dispatches; the task layer does not know which one runs.
 
 use rapier3d::math::{Pose, Vec3};
-use rapier3d::prelude::{ColliderBuilder, LockedAxes};
+use rapier3d::prelude::LockedAxes;
 
 use super::actuation::ActuatorParams;
 use super::articulated::{ArticulatedTree, ArticulatedWorld, Workspace};
@@ -13,6 +13,7 @@ use super::params::PhysicsParams;
 use super::robot_state::RobotState;
 use super::world::{RobotPhysicalParams, RobotWorld};
 use crate::robot::{NUM_JOINTS, RobotModel};
+use crate::terrain::Terrain;
 
 /// Which dynamics steps the robots.
 #[derive(
@@ -50,13 +51,16 @@ impl PhysicsWorld {
     pub fn new(
         model: &RobotModel,
         count: usize,
-        terrain: ColliderBuilder,
+        terrain: &Terrain,
         params: &PhysicsParams,
     ) -> Self {
         match params.engine {
-            EngineKind::Rapier => {
-                PhysicsWorld::Rapier(Box::new(RobotWorld::new(model, count, terrain, params)))
-            }
+            EngineKind::Rapier => PhysicsWorld::Rapier(Box::new(RobotWorld::new(
+                model,
+                count,
+                terrain.collider(),
+                params,
+            ))),
             EngineKind::Articulated => PhysicsWorld::Articulated(Box::new(ArticulatedWorld::new(
                 model, count, terrain, params,
             ))),

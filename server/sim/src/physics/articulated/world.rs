@@ -24,7 +24,7 @@ use rapier3d::math::{Mat3 as GMat3, Pose, Rotation, Vec3};
 use rapier3d::parry::query::{
     ContactManifold, ContactManifoldsWorkspace, DefaultQueryDispatcher, PersistentQueryDispatcher,
 };
-use rapier3d::prelude::{ColliderBuilder, LockedAxes, SharedShape};
+use rapier3d::prelude::{LockedAxes, SharedShape};
 
 use super::solver::{RowKind, Rows, SoftConstraint};
 use super::spatial::{self, cross, dot, mat_vec};
@@ -36,6 +36,7 @@ use crate::physics::params::PhysicsParams;
 use crate::physics::robot_state::RobotState;
 use crate::physics::world::{CONTACT_FORCE_THRESHOLD, RobotPhysicalParams};
 use crate::robot::{ColliderRole, NUM_FEET, NUM_JOINTS, RobotModel, Shape};
+use crate::terrain::Terrain;
 
 /// Distance (m) within which parry reports a contact point; closer points become speculative
 /// rows (a foot at 2 m/s moves 10 mm in a 5 ms step).
@@ -67,6 +68,9 @@ struct ColliderSpec {
     /// Pose in the body frame.
     local: Pose,
     shape: SharedShape,
+    /// Bounding sphere in the collider's frame: centre and radius.
+    sphere_center: Vec3,
+    sphere_radius: f32,
     role: ColliderRole,
 }
 
@@ -128,6 +132,11 @@ pub struct ArticulatedWorld {
     colliders: Vec<ColliderSpec>,
     terrain: SharedShape,
     terrain_pose: Pose,
+    /// The terrain's height queries, for skipping colliders well above it.
+    ground: Terrain,
+    /// Added to a collider's bounding radius in those queries (m): a heightfield's ramps reach
+    /// one sample past the cells the query looks at.
+    ground_margin: f32,
     /// `count x colliders.len()` contact caches.
     pairs: Vec<PairCache>,
     rows: Rows,
@@ -137,6 +146,7 @@ pub struct ArticulatedWorld {
     limit_impulse: Vec<f64>,
     /// Scratch, `nv` each.
     force: Vec<f64>,
+    /// Inverse pivots of the factor.
     pivots: Vec<f64>,
     velocity: Vec<f64>,
     /// Gauss-Seidel sweeps, summed over robot steps since creation.
@@ -177,15 +187,17 @@ fn rotation_of(m: &[f64; 9]) -> Rotation {
 }
 
 impl ArticulatedWorld {
-    /// A world with `count` robots of `model` over the terrain `terrain` (its shape and pose are
-    /// used; friction comes from each robot's parameters). Robots start at the origin in the
+    /// A world with `count` robots of `model` over `terrain` (its collider's shape and pose for
+    /// contacts, its height queries to skip colliders far above it; friction comes from each
+    /// robot's parameters). Robots start at the origin in the
     /// default pose, at rest.
     pub fn new(
         model: &RobotModel,
         count: usize,
-        terrain: ColliderBuilder,
+        terrain: &Terrain,
         params: &PhysicsParams,
     ) -> Self {
+        let collider = terrain.collider();
         // RobotModel::new has checked that the bodies form one tree from the trunk.
         let tree = ArticulatedTree::from_robot(model, 0.0)
             .expect("a robot model's bodies form a tree from the trunk");
@@ -221,12 +233,18 @@ impl ArticulatedWorld {
             .enumerate()
             .flat_map(|(b, body)| {
                 let t = tree_body[b];
-                body.colliders.iter().map(move |c| ColliderSpec {
-                    body: t,
-                    model_body: b,
-                    local: c.geometry.origin,
-                    shape: shape_of(&c.geometry.shape),
-                    role: c.role,
+                body.colliders.iter().map(move |c| {
+                    let shape = shape_of(&c.geometry.shape);
+                    let sphere = shape.compute_local_bounding_sphere();
+                    ColliderSpec {
+                        body: t,
+                        model_body: b,
+                        local: c.geometry.origin,
+                        sphere_center: sphere.center,
+                        sphere_radius: sphere.radius,
+                        shape,
+                        role: c.role,
+                    }
                 })
             })
             .collect::<Vec<_>>();
@@ -277,8 +295,10 @@ impl ArticulatedWorld {
                 .map(|_| PairCache::default())
                 .collect(),
             colliders,
-            terrain: terrain.shape.clone(),
-            terrain_pose: terrain.position,
+            terrain: collider.shape.clone(),
+            terrain_pose: collider.position,
+            ground: terrain.clone(),
+            ground_margin: terrain.grid().map_or(0.0, |g| g.spec().horizontal_scale),
             rows: Rows::new(nv, 3 * MAX_CONTACT_POINTS + NUM_JOINTS),
             sources: Vec::with_capacity(MAX_CONTACT_POINTS),
             limit_impulse: vec![0.0; count * 2 * NUM_JOINTS],
@@ -625,6 +645,9 @@ impl ArticulatedWorld {
         if !self.rows.is_empty() {
             // Y_i = L^-T J_i^T per row, then A = Y^T D^-1 Y, each row's regulariser and target.
             self.tree.pivots(&self.ws, &mut self.pivots);
+            for d in &mut self.pivots {
+                *d = 1.0 / *d;
+            }
             for i in 0..self.rows.len() {
                 let range = i * nv..(i + 1) * nv;
                 let jac = &mut self.rows.jacobian[range.clone()];
@@ -690,6 +713,15 @@ impl ArticulatedWorld {
             );
             let pose = body_pose * spec.local;
             let pair = &mut self.pairs[slot * nc + c];
+            // Far above the ground under it: no query (and no contact to remember).
+            let centre = pose.transform_point(spec.sphere_center);
+            let reach = spec.sphere_radius + self.ground_margin;
+            if centre.z - spec.sphere_radius - CONTACT_PREDICTION
+                > self.ground.max_height_within(centre.x, centre.y, reach)
+            {
+                pair.manifolds.clear();
+                continue;
+            }
             let pos12 = pose.inverse() * self.terrain_pose;
             if dispatcher
                 .contact_manifolds(
