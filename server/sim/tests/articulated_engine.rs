@@ -400,3 +400,32 @@ fn every_terrain_type_runs() {
         }
     }
 }
+
+/// The whole curriculum grid up to its hardest level, random actions at full scale for 4 s:
+/// feet leave the mesh and land again (parry's mesh caches must stay in step with the contacts
+/// the engine keeps), robots fall and are reset, and nothing goes non-finite.
+#[test]
+fn random_actions_on_the_curriculum_grid() {
+    let spec = TerrainSpec {
+        kind: TerrainKind::Curriculum { max_init_level: 9 },
+        ..TerrainSpec::default()
+    };
+    let terrain = Terrain::from_spec(&spec, 5).expect("terrain");
+    let options = VecEnvOptions {
+        num_envs: 32,
+        seed: 2,
+        threads: 1,
+        physics_only: false,
+        autoreset: true,
+    };
+    let cfg = TaskConfig::embedded_default()
+        .with_overrides(ENGINE)
+        .expect("config");
+    let mut env =
+        VecEnv::new(Arc::new(RobotModel::go2()), cfg, Arc::new(terrain), options).expect("batch");
+    let mut state = 3;
+    for _ in 0..200 {
+        env.step(&random_actions(32, &mut state)).expect("step");
+    }
+    assert_eq!(env.nonfinite_resets(), 0);
+}

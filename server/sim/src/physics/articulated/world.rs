@@ -713,13 +713,16 @@ impl ArticulatedWorld {
             );
             let pose = body_pose * spec.local;
             let pair = &mut self.pairs[slot * nc + c];
-            // Far above the ground under it: no query (and no contact to remember).
+            // Far above the ground under it: no query, and no contact to remember. The
+            // workspace goes with the manifolds: parry's mesh cache keeps one manifold per
+            // triangle it found and must not outlive them.
             let centre = pose.transform_point(spec.sphere_center);
             let reach = spec.sphere_radius + self.ground_margin;
             if centre.z - spec.sphere_radius - CONTACT_PREDICTION
                 > self.ground.max_height_within(centre.x, centre.y, reach)
             {
                 pair.manifolds.clear();
+                pair.workspace = None;
                 continue;
             }
             let pos12 = pose.inverse() * self.terrain_pose;
