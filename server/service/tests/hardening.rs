@@ -857,7 +857,11 @@ async fn a_curriculum_session_starts_its_envs_on_the_levels_it_asks_for() {
             .create_session(with_levels(8, kind, bad.clone()))
             .await
             .expect_err("refused");
-        assert_eq!(status.code(), Code::InvalidArgument, "{kind} {bad:?}: {status}");
+        assert_eq!(
+            status.code(),
+            Code::InvalidArgument,
+            "{kind} {bad:?}: {status}"
+        );
         assert!(status.message().contains("initial_levels"), "{status}");
     }
     assert_eq!(active_sessions(&mut c).await.0, 1);

@@ -114,7 +114,8 @@ fn a_resumed_curriculum_starts_its_envs_on_the_levels_it_is_given() {
     let mut g = grid(TerrainKind::Curriculum { max_init_level: 1 });
     // Levels far above max_init_level: only the given levels can put envs there.
     let levels: Vec<u32> = (0..40).map(|i| 9 - (i % 4)).collect();
-    g.set_initial_levels(levels.clone()).expect("levels on the grid");
+    g.set_initial_levels(levels.clone())
+        .expect("levels on the grid");
     let mut rng = ChaCha8Rng::seed_from_u64(0);
     for (i, level) in levels.iter().enumerate() {
         assert_eq!(g.initial_tile(i, 40, &mut rng), (*level, (i / 2) as u32));
