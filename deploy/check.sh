@@ -13,6 +13,16 @@ venv="${CHECK_VENV:-/tmp/unigait-deploy-check}"
         "yamllint==1.38.0" "jsonschema>=4.20" "pyyaml>=6"
 }
 "$venv/bin/hadolint" "$here/Dockerfile"
+# Cargo loads every workspace member even for `-p unigait-server`: the build stage must copy
+# each one (a member added to Cargo.toml and not here breaks the image).
+copied="$(sed -n 's/^COPY \([^ -][^ ]*\) .*/\1/p' "$here/Dockerfile")"
+for member in $(sed -n 's/^members = \[\(.*\)\]/\1/p' "$here/../Cargo.toml" | tr -d '" ' | tr ',' ' '); do
+    covered=""
+    for c in $copied; do
+        case "$member/" in "${c%/}/"*) covered=1 ;; esac
+    done
+    [ -n "$covered" ] || { echo "Dockerfile: workspace member $member is not copied" >&2; exit 1; }
+done
 rules="{extends: default, rules: {line-length: {max: 100}, document-start: disable}}"
 "$venv/bin/yamllint" -d "$rules" "$here/k8s"
 # The worst case the server's flags allow against its pod's memory limit (MiB):

@@ -12,6 +12,8 @@ cargo fmt --all -- --check
 echo "== docs: mdbook build, link check"
 mdbook build docs
 python3 scripts/check_links.py
+echo "== deploy: Dockerfile lint and workspace members, manifests, the pods' memory worst case"
+CHECK_VENV="$PWD/.venv-deploy-check" bash deploy/check.sh
 echo "== cargo build (release)"
 cargo build --release --workspace --all-targets --locked
 echo "== the Rust client builds without the simulator (no rapier in its dependency tree)"
