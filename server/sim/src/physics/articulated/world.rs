@@ -49,10 +49,11 @@ const MAX_CONTACT_POINTS: usize = 32;
 /// Contact points kept per collider.
 const MAX_POINTS_PER_COLLIDER: usize = 8;
 /// Gauss-Seidel sweeps at most per step, and the impulse change (N s) that ends them early:
-/// 1e-5 N s is 2 mN over a 5 ms step (the robot weighs 147 N); 1e-7 took 15-20 sweeps a step
-/// under random targets, 1e-5 takes 7-14 with the warm start.
+/// 1e-4 N s is 20 mN over a 5 ms step (the robot weighs 147 N). Under random targets, with the
+/// warm start: 15-29 sweeps a step at 1e-7, 7-24 at 1e-5, 5-7 (18 at worst) at 1e-4, with the
+/// same test figures and MuJoCo cross-checks.
 const MAX_SWEEPS: usize = 50;
-const SWEEP_TOLERANCE: f64 = 1e-5;
+const SWEEP_TOLERANCE: f64 = 1e-4;
 /// Tags of joint-stop rows: `LIMIT_TAG + 2 j + side` (side 0 the lower stop).
 const LIMIT_TAG: u32 = 1 << 31;
 /// Diagonal put on a locked base DoF (test hook), which is decoupled from the others.
