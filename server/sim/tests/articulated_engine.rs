@@ -240,7 +240,7 @@ fn pd_holds_the_default_standing_pose() {
 }
 
 /// Actions at the clip limit, changing sign at random every step: torques never pass the effort
-/// limits, and no joint goes more than 0.04 rad past a stop (measured 0.024: a calf whipped into
+/// limits, and no joint goes more than 0.04 rad past a stop (measured 0.028: a calf whipped into
 /// its stop at 30-55 rad/s is caught by the speculative row, then the soft row; the rapier engine
 /// overshoots by up to 0.30 rad).
 #[test]
