@@ -132,8 +132,8 @@ pub struct Rows {
     pub(super) delassus: Vec<f64>,
     /// Regulariser `R_i`.
     pub(super) regulariser: Vec<f64>,
-    /// `A_ii + R_i`.
-    pub(super) denominator: Vec<f64>,
+    /// `1 / (A_ii + R_i)`.
+    pub(super) inverse_denominator: Vec<f64>,
     /// The right-hand side `J v + h a_ref` (soft) or `-r / h` (speculative).
     pub(super) target: Vec<f64>,
     /// Solved impulses.
@@ -143,6 +143,9 @@ pub struct Rows {
     pub(super) kind: Vec<RowKind>,
     /// Caller's tag per row (which collider or joint it belongs to).
     pub(super) tag: Vec<u32>,
+    /// Per row: the deepest DoF its Jacobian may touch (the contact body's own DoF); the row's
+    /// nonzeros lie on that DoF's ancestor chain.
+    pub(super) dof: Vec<usize>,
 }
 
 impl Rows {
@@ -156,12 +159,13 @@ impl Rows {
             half: vec![0.0; capacity * nv],
             delassus: vec![0.0; capacity * capacity],
             regulariser: vec![0.0; capacity],
-            denominator: vec![0.0; capacity],
+            inverse_denominator: vec![0.0; capacity],
             target: vec![0.0; capacity],
             impulse: vec![0.0; capacity],
             velocity: vec![0.0; capacity],
             kind: vec![RowKind::Unilateral; capacity],
             tag: vec![0; capacity],
+            dof: vec![0; capacity],
         }
     }
 
@@ -185,14 +189,15 @@ impl Rows {
         self.len = 0;
     }
 
-    /// Append a row with a zeroed Jacobian; returns its index and the Jacobian to fill.
-    /// The caller checks [`Rows::room`] first.
-    pub fn push(&mut self, kind: RowKind, tag: u32) -> (usize, &mut [f64]) {
+    /// Append a row with a zeroed Jacobian, nonzero at most on the ancestor chain of DoF `dof`;
+    /// returns its index and the Jacobian to fill. The caller checks [`Rows::room`] first.
+    pub fn push(&mut self, kind: RowKind, tag: u32, dof: usize) -> (usize, &mut [f64]) {
         let i = self.len;
         assert!(i < self.capacity, "constraint rows full");
         self.len += 1;
         self.kind[i] = kind;
         self.tag[i] = tag;
+        self.dof[i] = dof;
         self.impulse[i] = 0.0;
         let j = &mut self.jacobian[i * self.nv..(i + 1) * self.nv];
         j.fill(0.0);
@@ -215,18 +220,26 @@ impl Rows {
     }
 
     /// The Delassus matrix from the rows' `Y_i` (in `half`) and the inverse of the factor's
-    /// pivots `D`: `A_ij = sum_k Y_ik Y_jk / D_k`.
-    pub(super) fn assemble(&mut self, inverse_pivots: &[f64]) {
+    /// pivots `D`: `A_ij = sum_k Y_ik Y_jk / D_k`. `chain(k)` lists DoF `k`'s ancestors and
+    /// itself, root first: two rows share only the common prefix of their chains (the base's
+    /// six DoFs for contacts on different legs), and the sum runs over it alone.
+    pub(super) fn assemble<'a>(
+        &mut self,
+        inverse_pivots: &[f64],
+        chain: impl Fn(usize) -> &'a [usize],
+    ) {
         let (nv, cap) = (self.nv, self.capacity);
         for i in 0..self.len {
             let yi = &self.half[i * nv..(i + 1) * nv];
+            let ci = chain(self.dof[i]);
             for j in 0..=i {
                 let yj = &self.half[j * nv..(j + 1) * nv];
-                let a: f64 = yi
+                let cj = chain(self.dof[j]);
+                let a: f64 = ci
                     .iter()
-                    .zip(yj)
-                    .zip(inverse_pivots)
-                    .map(|((x, y), d)| x * y * d)
+                    .zip(cj)
+                    .take_while(|(x, y)| x == y)
+                    .map(|(&k, _)| yi[k] * yj[k] * inverse_pivots[k])
                     .sum();
                 self.delassus[i * cap + j] = a;
                 self.delassus[j * cap + i] = a;
@@ -245,7 +258,7 @@ impl Rows {
             None => 1e-6 * a,
         };
         self.regulariser[i] = r;
-        self.denominator[i] = a + r;
+        self.inverse_denominator[i] = 1.0 / (a + r);
         self.target[i] = target;
     }
 
@@ -283,7 +296,7 @@ impl Rows {
                 let residual =
                     self.velocity[i] + self.regulariser[i] * self.impulse[i] - self.target[i];
                 let old = self.impulse[i];
-                let free = old - residual / self.denominator[i];
+                let free = old - residual * self.inverse_denominator[i];
                 let new = match self.kind[i] {
                     RowKind::Unilateral => free.max(0.0),
                     RowKind::Friction { normal, mu } => {
@@ -351,13 +364,15 @@ mod test {
         let nv = masses.len();
         let mut r = Rows::new(nv, 8);
         for &(kind, dof) in rows {
-            let (i, j) = r.push(kind, 0);
+            let (i, j) = r.push(kind, 0, dof);
             j[dof] = 1.0;
             // L = I, D = M: Y = J.
             r.half[i * nv + dof] = 1.0;
         }
         let inverse: Vec<f64> = masses.iter().map(|m| 1.0 / m).collect();
-        r.assemble(&inverse);
+        // Every DoF its own root: rows on different DoFs do not couple.
+        let chains: Vec<Vec<usize>> = (0..nv).map(|k| vec![k]).collect();
+        r.assemble(&inverse, |k| &chains[k]);
         r
     }
 

@@ -69,8 +69,8 @@ struct ColliderSpec {
     /// Pose in the body frame.
     local: Pose,
     shape: SharedShape,
-    /// Bounding sphere in the collider's frame: centre and radius.
-    sphere_center: Vec3,
+    /// Bounding sphere: centre in the body frame, radius.
+    sphere_center: [f64; 3],
     sphere_radius: f32,
     role: ColliderRole,
 }
@@ -241,7 +241,7 @@ impl ArticulatedWorld {
                         body: t,
                         model_body: b,
                         local: c.geometry.origin,
-                        sphere_center: sphere.center,
+                        sphere_center: widen3(c.geometry.origin.transform_point(sphere.center)),
                         sphere_radius: sphere.radius,
                         shape,
                         role: c.role,
@@ -661,7 +661,8 @@ impl ArticulatedWorld {
                 half.copy_from_slice(jac);
                 half_solve(&self.tree, &self.ws, half);
             }
-            self.rows.assemble(&self.pivots);
+            let tree = &self.tree;
+            self.rows.assemble(&self.pivots, |k| tree.row(k).1);
             self.finish_rows(slot);
             t3 = Instant::now();
             self.rows.warm_start(&self.velocity);
@@ -708,24 +709,31 @@ impl ArticulatedWorld {
         for c in 0..nc {
             let spec = &self.colliders[c];
             let b = spec.body;
-            let body_pose = Pose::from_parts(
-                narrow3(self.ws.body_position(b)),
-                rotation_of(&self.ws.rotation[b]),
-            );
-            let pose = body_pose * spec.local;
             let pair = &mut self.pairs[slot * nc + c];
             // Far above the ground under it: no query, and no contact to remember. The
             // workspace goes with the manifolds: parry's mesh cache keeps one manifold per
-            // triangle it found and must not outlive them.
-            let centre = pose.transform_point(spec.sphere_center);
+            // triangle it found and must not outlive them. (Checked before any pose is built:
+            // most colliders end here.)
+            let body_position = self.ws.body_position(b);
+            let centre = spatial::add(
+                &body_position,
+                &mat_vec(&self.ws.rotation[b], &spec.sphere_center),
+            );
             let reach = spec.sphere_radius + self.ground_margin;
-            if centre.z - spec.sphere_radius - CONTACT_PREDICTION
-                > self.ground.max_height_within(centre.x, centre.y, reach)
-            {
-                pair.manifolds.clear();
-                pair.workspace = None;
+            let ground = self
+                .ground
+                .max_height_within(centre[0] as f32, centre[1] as f32, reach);
+            if centre[2] as f32 - spec.sphere_radius - CONTACT_PREDICTION > ground {
+                if !pair.manifolds.is_empty() || pair.workspace.is_some() {
+                    pair.manifolds.clear();
+                    pair.workspace = None;
+                }
                 continue;
             }
+            let dof = body_dof(&self.tree, b);
+            let body_pose =
+                Pose::from_parts(narrow3(body_position), rotation_of(&self.ws.rotation[b]));
+            let pose = body_pose * spec.local;
             let pos12 = pose.inverse() * self.terrain_pose;
             if dispatcher
                 .contact_manifolds(
@@ -759,14 +767,16 @@ impl ArticulatedWorld {
                     let rel = [p[0] - base[0], p[1] - base[1], p[2] - base[2]];
                     let dist = f64::from(point.dist);
                     let tag = c as u32;
-                    let (ni, jac) = self.rows.push(RowKind::Unilateral, tag);
+                    let (ni, jac) = self.rows.push(RowKind::Unilateral, tag, dof);
                     point_jacobian(&self.tree, &self.ws, b, &rel, &n, jac);
                     // The distance rides in the target until `finish_rows` (it is needed with
                     // the row's velocity).
                     self.rows.target[ni] = dist;
                     self.rows.impulse[ni] = point.data[0];
                     for (e, t) in [t1, t2].into_iter().enumerate() {
-                        let (ti, jac) = self.rows.push(RowKind::Friction { normal: ni, mu }, tag);
+                        let (ti, jac) =
+                            self.rows
+                                .push(RowKind::Friction { normal: ni, mu }, tag, dof);
                         point_jacobian(&self.tree, &self.ws, b, &rel, &t, jac);
                         self.rows.target[ti] = dist;
                         self.rows.impulse[ti] = point.data[1 + e];
@@ -795,7 +805,7 @@ impl ArticulatedWorld {
                 let closing = (-sign * qd * h).max(0.0);
                 if dist < LIMIT_PREDICTION + closing && self.rows.room() > 0 {
                     let tag = LIMIT_TAG + (2 * j + side) as u32;
-                    let (i, jac) = self.rows.push(RowKind::Unilateral, tag);
+                    let (i, jac) = self.rows.push(RowKind::Unilateral, tag, k);
                     jac[k] = sign;
                     self.rows.target[i] = dist;
                     self.rows.impulse[i] = self.limit_impulse[slot * 2 * NUM_JOINTS + 2 * j + side];
@@ -1041,6 +1051,16 @@ fn tangents(n: &[f64; 3]) -> ([f64; 3], [f64; 3]) {
     )
 }
 
+/// The DoF that moves body `body` last: its joint, or the base's last DoF for the root
+/// ([`NO_PARENT`] for a fixed root).
+fn body_dof(tree: &ArticulatedTree<f64>, body: usize) -> usize {
+    if body == 0 {
+        tree.base_dofs().checked_sub(1).unwrap_or(NO_PARENT)
+    } else {
+        tree.base_dofs() + body - 1
+    }
+}
+
 /// Jacobian row of the velocity along `dir` of the point of body `body` at `rel` (relative to
 /// the base origin, world axes): over the body's ancestor DoFs, `dir . (S_lin + S_ang x rel)`.
 fn point_jacobian(
@@ -1052,11 +1072,7 @@ fn point_jacobian(
     out: &mut [f64],
 ) {
     let arm = cross(rel, dir);
-    let mut k = if body == 0 {
-        tree.base_dofs().checked_sub(1).unwrap_or(NO_PARENT)
-    } else {
-        tree.base_dofs() + body - 1
-    };
+    let mut k = body_dof(tree, body);
     while k != NO_PARENT {
         let s = &ws.motion[k];
         out[k] = dir[0] * s[3]
