@@ -12,6 +12,7 @@ import sys
 import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from unigait.client import (
     Client,
@@ -22,6 +23,9 @@ from unigait.client import (
 )
 from unigait.mujoco import cli as mujoco_cli
 from unigait.server_process import LocalServer
+
+if TYPE_CHECKING:
+    from unigait.live_view import ViewTarget as LiveViewTarget
 
 # Idle OpenMP threads sleep instead of spinning: the learner's torch threads share the cores with
 # the simulation server. Set before torch is imported (the commands import it lazily).
@@ -93,9 +97,30 @@ def _without(argv: Sequence[str], flags: frozenset[str]) -> list[str]:
     return kept
 
 
+def _without_watching(argv: Sequence[str]) -> list[str]:
+    """``argv`` less how the run is watched: ``--view`` and its values, ``--tensorboard``."""
+    kept: list[str] = []
+    in_view = False
+    for arg in argv:
+        if in_view and not arg.startswith("-"):
+            continue
+        in_view = arg == "--view"
+        if not in_view and arg != "--tensorboard":
+            kept.append(arg)
+    return kept
+
+
 def training_command(argv: Sequence[str]) -> str:
     """The shell line of a command, without where it ran, resumed or got credentials."""
-    return shlex.join(["python", "-m", "unigait", *_without(argv, NOT_IN_RECIPE)])
+    kept = _without(_without_watching(argv), NOT_IN_RECIPE)
+    return shlex.join(["python", "-m", "unigait", *kept])
+
+
+def _view_target(args: argparse.Namespace) -> LiveViewTarget | None:
+    """``--view`` as a target (None without it); ViewError on a malformed one."""
+    from unigait.live_view import parse_view
+
+    return None if args.view is None else parse_view(args.view)
 
 
 def _train_recipe(args: argparse.Namespace) -> int:
@@ -118,6 +143,13 @@ def _train_recipe(args: argparse.Namespace) -> int:
     if args.ray is not None or args.resume or args.init_from:
         print("error: --recipe takes no --ray, --resume or --init-from", file=sys.stderr)
         return 2
+    from unigait.live_view import ViewError
+
+    try:
+        view = _view_target(args)
+    except ViewError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
     servers = args.server or list(recipe.stages[0].config.env.servers)
     with _servers(servers, recipe.stages[0].config.env.server_bin) as addresses:
         try:
@@ -129,8 +161,10 @@ def _train_recipe(args: argparse.Namespace) -> int:
                 _connection(args),
                 overwrite=args.overwrite,
                 adopt=args.adopt_recipe,
+                view=view,
+                tensorboard=args.tensorboard,
             )
-        except RecipeRunError as err:
+        except (RecipeRunError, ViewError) as err:
             print(f"error: {err}", file=sys.stderr)
             return 2
     return 0
@@ -159,7 +193,14 @@ def _train(args: argparse.Namespace) -> int:
     import dataclasses
 
     from unigait.config import load_config, with_task_setting
+    from unigait.live_view import ViewError
     from unigait.runners import CheckpointMismatchError, train
+
+    try:
+        view = _view_target(args)
+    except ViewError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
 
     overrides = list(args.set or [])
     if args.num_envs is not None:
@@ -172,6 +213,8 @@ def _train(args: argparse.Namespace) -> int:
         overrides += [f"env.seed={args.seed}", f"runner.seed={args.seed}"]
     if args.quiet:
         overrides.append("runner.quiet=true")
+    if args.tensorboard:
+        overrides.append("runner.tensorboard=true")
     if args.server:
         overrides.append(f"env.servers={json.dumps(args.server)}")
     cfg = load_config(args.config, overrides)
@@ -183,6 +226,9 @@ def _train(args: argparse.Namespace) -> int:
         print(f"error: {refusal}", file=sys.stderr)
         return 2
     stage = training_command(args.argv)
+    if args.ray is not None and view is not None:
+        print("error: --view does not go with --ray yet", file=sys.stderr)
+        return 2
     if args.ray is not None:  # servers as Ray actors, lost ones replaced: unigait.ray
         from unigait.ray import PoolConfigError, ServerCredentials, train_on_ray
 
@@ -220,8 +266,9 @@ def _train(args: argparse.Namespace) -> int:
                 init_from=args.init_from,
                 stage=stage,
                 servers=", ".join(addresses),
+                view=view,
             )
-        except CheckpointMismatchError as err:
+        except (CheckpointMismatchError, ViewError) as err:
             print(f"error: {err}", file=sys.stderr)
             return 2
     return 0
@@ -472,6 +519,18 @@ def build_parser() -> argparse.ArgumentParser:
         help="staged training: take the networks (not the optimiser or counters) of a model_*.pt",
     )
     t.add_argument("--quiet", action="store_true", help="one line per iteration")
+    t.add_argument(
+        "--view",
+        nargs="+",
+        metavar="ARG",
+        help="stream the run to rerun: serve [[HOST:]PORT] (loopback 127.0.0.1:9876 by default; "
+        "join with rerun --connect URL), connect URL (a running viewer), or save PATH.rrd",
+    )
+    t.add_argument(
+        "--tensorboard",
+        action="store_true",
+        help="also write TensorBoard events beside progress.csv (runner.tensorboard)",
+    )
     t.set_defaults(func=_train)
 
     e = sub.add_parser("export", help="fused estimator + actor to ONNX")

@@ -88,6 +88,8 @@ class RunnerConfig:
             spinning against the simulation.
         seed: Torch seed.
         quiet: Print one line per iteration instead of the full block.
+        tensorboard: Also write the scalars as TensorBoard events in ``log_dir`` (the CSV's
+            names, step = iteration).
     """
 
     num_steps_per_env: int = 24
@@ -100,6 +102,7 @@ class RunnerConfig:
     update_threads: int = 2
     seed: int = 1
     quiet: bool = False
+    tensorboard: bool = False
 
 
 @dataclass(frozen=True)

@@ -12,7 +12,7 @@ import os
 import shlex
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import torch
 
@@ -29,6 +29,16 @@ NETWORK_KEYS = (
     ("policy", ("actor_hidden_dims", "critic_hidden_dims", "activation", "history_length")),
     ("estimator", ("hidden_dims",)),
 )
+
+
+class ScalarSink(Protocol):
+    """Where each iteration's scalars go besides the CSV (TensorBoard, a live view)."""
+
+    def log(self, scalars: dict[str, float]) -> None:
+        """One iteration's scalars."""
+
+    def close(self) -> None:
+        """Flush; release what the sink holds."""
 
 
 class CheckpointMismatchError(ValueError):
@@ -133,6 +143,12 @@ class OnPolicyRunner:
         if log_dir is not None:
             log_dir.mkdir(parents=True, exist_ok=True)
             self.logger = TrainLogger(log_dir, spec.reward_terms, cfg.runner.quiet)
+        #: Each iteration's scalars also go to these (the CSV's names); closed by ``close``.
+        self.sinks: list[ScalarSink] = []
+        if log_dir is not None and cfg.runner.tensorboard:
+            from unigait.live_view import TensorBoardLog
+
+            self.sinks.append(TensorBoardLog(log_dir))
 
     def policy(self) -> EstimatorActorPolicy:
         """The fused estimator + actor (mean action) for export or deployment."""
@@ -275,6 +291,8 @@ class OnPolicyRunner:
                 **scalars,
             }
             history.append(scalars)
+            for sink in self.sinks:
+                sink.log(scalars)
             if self.logger is not None and self.log_dir is not None:
                 self.logger.log(scalars)
                 last = i == num_iterations - 1
@@ -283,6 +301,12 @@ class OnPolicyRunner:
                 if self.iteration % rc.plot_interval == 0 or last:
                     self.logger.plot()
         return history
+
+    def close(self) -> None:
+        """Flush and close the scalar sinks (TensorBoard, a live view)."""
+        for sink in self.sinks:
+            sink.close()
+        self.sinks.clear()
 
     def state_dict(self) -> dict[str, Any]:
         """Everything a checkpoint holds."""

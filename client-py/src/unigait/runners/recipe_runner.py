@@ -8,6 +8,7 @@ in progress from its latest checkpoint and goes on.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 import sys
@@ -26,6 +27,7 @@ from unigait.config import (
     session_config,
 )
 from unigait.env import TorchVecEnv
+from unigait.live_view import LiveView, ViewTarget
 from unigait.milestones import milestone as load_milestone
 from unigait.provenance import git_commit
 from unigait.recipes import Recipe, Stage, stage_config
@@ -141,8 +143,24 @@ def run_stage(
     addresses: Sequence[str],
     connection: ConnectionOptions,
     log: Callable[[str], None],
+    view: LiveView | None = None,
+    view_offset: int = 0,
+    tensorboard: bool = False,
 ) -> Path:
     """Train one stage to its stop rule (resuming its own latest checkpoint if it has one).
+
+    Args:
+        recipe: The recipe.
+        stage: The stage.
+        stage_dir: Its folder.
+        previous_final: The previous stage's final checkpoint (None for the first).
+        addresses: The servers.
+        connection: How to reach them.
+        log: Progress lines.
+        view: The recipe's live view, if any (one recording for every stage).
+        view_offset: Iterations of the recipe's earlier stages: the view's timeline counts the
+            recipe's iterations, as a stage's own may start again from 0.
+        tensorboard: Also write TensorBoard events into the stage's folder.
 
     Returns:
         The stage's final checkpoint.
@@ -156,6 +174,8 @@ def run_stage(
     stage_dir.mkdir(parents=True, exist_ok=True)
     source = latest if resuming else _start_checkpoint(stage, previous_final)
     cfg: TrainConfig = stage_config(stage, stage_dir)
+    if tensorboard:
+        cfg = dataclasses.replace(cfg, runner=dataclasses.replace(cfg.runner, tensorboard=True))
     terrain_levels: list[int] = []
     if source is not None:
         checkpoint = torch.load(source, map_location="cpu", weights_only=False)
@@ -172,6 +192,7 @@ def run_stage(
             f"(mean {mean:.2f})"
         )
     env = TorchVecEnv(session, cfg.runner.device)
+    runner: OnPolicyRunner | None = None
     try:
         runner = OnPolicyRunner(env, cfg, stage_dir)
         if resuming:
@@ -205,6 +226,16 @@ def run_stage(
         }
         target = start_iteration + stage.stop.iterations
         rule = stage.stop
+        if view is not None:
+            view.offset = view_offset - start_iteration
+            view.reward_terms = list(env.spec.reward_terms)
+            runner.sinks.append(view)
+            what = "resumed" if resuming else "starts"
+            view.event(
+                runner.iteration,
+                f"stage {stage.index + 1} of {len(recipe.stages)} ({stage.name}) {what} at "
+                f"its iteration {runner.iteration}",
+            )
         log(
             f"stage {stage.dir_name}: {env.num_envs} envs, iterations "
             f"{runner.iteration + 1}-{target}"
@@ -244,6 +275,10 @@ def run_stage(
         )
         return final
     finally:
+        if runner is not None:
+            if view is not None and view in runner.sinks:
+                runner.sinks.remove(view)  # the recipe's: it outlives the stage
+            runner.close()
         env.close()
 
 
@@ -257,6 +292,8 @@ def run_recipe(
     overwrite: bool = False,
     adopt: bool = False,
     log: Callable[[str], None] = lambda text: print(text, file=sys.stderr),
+    view: ViewTarget | None = None,
+    tensorboard: bool = False,
 ) -> Path:
     """Every stage of ``recipe`` in order, skipping those a previous call ended.
 
@@ -266,6 +303,7 @@ def run_recipe(
     Raises:
         RecipeRunError: The recipe does not run at this commit, or the log directory holds
             something else.
+        ViewError: The live view cannot be set up.
     """
     if not recipe.runs_at_head:
         stale = [s.name for s in recipe.stages if not s.runs_at_head]
@@ -274,11 +312,36 @@ def run_recipe(
             f"({', '.join(stale)}): it documents history; train a recipe that runs at this commit"
         )
     prepare_log_dir(recipe, sets, log_dir, overwrite, adopt)
+    live = None if view is None else LiveView(view, log_dir, f"recipe {recipe.name}")
+    try:
+        final = _run_stages(recipe, log_dir, addresses, connection, log, live, tensorboard)
+    finally:
+        if live is not None:
+            live.close()
+    latest = log_dir / "final.pt"
+    shutil.copyfile(final, latest.with_name(".final.pt.partial"))
+    latest.with_name(".final.pt.partial").replace(latest)
+    log(f"recipe {recipe.name} done: {latest} (from {final})")
+    return latest
+
+
+def _run_stages(
+    recipe: Recipe,
+    log_dir: Path,
+    addresses: Sequence[str],
+    connection: ConnectionOptions,
+    log: Callable[[str], None],
+    view: LiveView | None,
+    tensorboard: bool,
+) -> Path:
+    """Each stage not ended yet, in order; the last stage's final checkpoint."""
     final: Path | None = None
+    done_iterations = 0  # the earlier stages' iterations: where the view's timeline is
     for stage in recipe.stages:
         stage_dir = log_dir / stage.dir_name
         done = stage_dir / DONE_FILE
         if done.exists():
+            done_iterations += int(_read_json(done).get("stage_iterations", 0))
             final = stage_dir / str(_read_json(done)["final_checkpoint"])
             if not final.exists():
                 # A run folder kept in git holds only the latest checkpoint, which an ended
@@ -286,10 +349,18 @@ def run_recipe(
                 final = stage_dir / "model_latest.pt"
             log(f"stage {stage.dir_name}: ended before ({final})")
             continue
-        final = run_stage(recipe, stage, stage_dir, final, addresses, connection, log)
+        final = run_stage(
+            recipe,
+            stage,
+            stage_dir,
+            final,
+            addresses,
+            connection,
+            log,
+            view=view,
+            view_offset=done_iterations,
+            tensorboard=tensorboard,
+        )
+        done_iterations += int(_read_json(stage_dir / DONE_FILE)["stage_iterations"])
     assert final is not None
-    latest = log_dir / "final.pt"
-    shutil.copyfile(final, latest.with_name(".final.pt.partial"))
-    latest.with_name(".final.pt.partial").replace(latest)
-    log(f"recipe {recipe.name} done: {latest} (from {final})")
-    return latest
+    return final

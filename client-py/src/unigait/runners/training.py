@@ -21,6 +21,7 @@ from unigait.config import (
     session_config,
 )
 from unigait.env import TorchVecEnv
+from unigait.live_view import LiveView, ViewTarget
 from unigait.provenance import git_commit
 from unigait.runners.on_policy_runner import OnPolicyRunner
 
@@ -34,6 +35,7 @@ def train(
     stage: str | None = None,
     runner_class: type[OnPolicyRunner] = OnPolicyRunner,
     servers: str = "",
+    view: ViewTarget | None = None,
 ) -> list[dict[str, float]]:
     """Train ``cfg.runner.max_iterations`` (less a resumed run's) into ``cfg.runner.log_dir``.
 
@@ -46,6 +48,8 @@ def train(
         stage: The command line of this run, kept in its checkpoints (model cards show it).
         runner_class: The runner (the Ray path's also logs server restarts).
         servers: Where the session runs, for the start line.
+        view: Stream the run to a rerun live view (:mod:`unigait.live_view`); a resumed run
+            continues the recording of its folder.
 
     Returns:
         The logged scalars of each iteration.
@@ -72,14 +76,22 @@ def train(
     if terrain_levels:
         mean = sum(terrain_levels) / len(terrain_levels)
         print(f"envs start on the terrain levels of {source} (mean {mean:.2f})")
+    runner: OnPolicyRunner | None = None
     try:
         runner = runner_class(env, cfg, log_dir)
+        live = None
+        if view is not None:
+            live = LiveView(view, log_dir, f"train {log_dir.name}", env.spec.reward_terms)
+            runner.sinks.append(live)
         if resume:
             runner.load(resume)
             print(f"resumed from {resume} at iteration {runner.iteration}")
         elif init_from:
             runner.load_weights(init_from)
             print(f"networks initialised from {init_from}")
+        if live is not None:
+            started = f"resumed from {resume}" if resume else "started"
+            live.event(runner.iteration, f"run {started} at iteration {runner.iteration}")
         if stage:
             runner.record_stage(stage)
         runner.provenance = {"git_commit": git_commit()}
@@ -90,4 +102,6 @@ def train(
         )
         return runner.learn(remaining)
     finally:
+        if runner is not None:
+            runner.close()
         env.close()
