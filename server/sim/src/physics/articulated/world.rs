@@ -46,6 +46,8 @@ const LIMIT_PREDICTION: f64 = 0.02;
 /// Contact points kept per robot per step, in collider order (a fallen robot on a mesh edge can
 /// report more; the rest are dropped).
 const MAX_CONTACT_POINTS: usize = 32;
+/// How far (m) a robot's base may move before its reachable terrain height is asked again.
+const GROUND_CACHE_SLACK: f32 = 0.05;
 /// Contact points kept per collider.
 const MAX_POINTS_PER_COLLIDER: usize = 8;
 /// Gauss-Seidel sweeps at most per step, and the impulse change (N s) that ends them early:
@@ -138,6 +140,12 @@ pub struct ArticulatedWorld {
     /// Added to a collider's bounding radius in those queries (m): a heightfield's ramps reach
     /// one sample past the cells the query looks at.
     ground_margin: f32,
+    /// Farthest any collider point can be from the base origin, whatever the joint angles (m).
+    reach: f32,
+    /// Per robot: the terrain's highest point within `reach + GROUND_CACHE_SLACK` of (x, y),
+    /// as `[x, y, height]` (NaN: not yet asked). One height query per robot while it moves less
+    /// than the slack, instead of one per collider and step.
+    ground_cache: Vec<[f32; 3]>,
     /// `count x colliders.len()` contact caches.
     pairs: Vec<PairCache>,
     rows: Rows,
@@ -300,6 +308,8 @@ impl ArticulatedWorld {
             terrain_pose: collider.position,
             ground: terrain.clone(),
             ground_margin: terrain.grid().map_or(0.0, |g| g.spec().horizontal_scale),
+            reach: 0.0,
+            ground_cache: vec![[f32::NAN; 3]; count],
             rows: Rows::new(nv, 3 * MAX_CONTACT_POINTS + NUM_JOINTS),
             sources: Vec::with_capacity(MAX_CONTACT_POINTS),
             limit_impulse: vec![0.0; count * 2 * NUM_JOINTS],
@@ -311,6 +321,7 @@ impl ArticulatedWorld {
             sweeps: 0,
             counters: PhysicsCounters::default(),
         };
+        world.reach = world.colliders_reach();
         let q0: [f32; NUM_JOINTS] = std::array::from_fn(|j| model.config.default_joint_pos[j]);
         for slot in 0..count {
             world.set_physical_params(model, slot, &nominal);
@@ -395,6 +406,7 @@ impl ArticulatedWorld {
         qvel[3..6].copy_from_slice(&widen3(r.inverse() * angvel));
         self.faulted[slot] = false;
         self.summary[slot] = ContactSummary::default();
+        self.ground_cache[slot] = [f32::NAN; 3];
         let nc = self.colliders.len();
         for pair in &mut self.pairs[slot * nc..(slot + 1) * nc] {
             pair.manifolds.clear();
@@ -469,6 +481,24 @@ impl ArticulatedWorld {
         let com = mat_vec(&r, &self.trunk_com[slot]);
         let ic = spatial::rotate_symmetric(&r, &self.trunk_inertia[slot]);
         ws.inertia[0] = spatial::inertia_at(self.trunk_mass[slot], &com, &ic);
+    }
+
+    /// An upper bound on the distance from the base origin to any point of any collider: the
+    /// joint offsets up the tree, plus the collider's bounding sphere.
+    fn colliders_reach(&self) -> f32 {
+        self.colliders
+            .iter()
+            .map(|c| {
+                let mut d = dot(&c.sphere_center, &c.sphere_center).sqrt();
+                let mut b = c.body;
+                while b != 0 {
+                    let t = &self.tree.body_translation[b];
+                    d += dot(t, t).sqrt();
+                    b = self.tree.body_parent[b];
+                }
+                d as f32 + c.sphere_radius
+            })
+            .fold(0.0, f32::max)
     }
 
     /// Mass (kg) and world centre of mass of model body `b` of robot `slot`, as simulated.
@@ -706,6 +736,15 @@ impl ArticulatedWorld {
         let dispatcher = DefaultQueryDispatcher;
         let mut points = 0;
         self.sources.clear();
+        // The highest terrain anywhere the robot can reach: colliders above it need no query of
+        // their own.
+        let (bx, by) = (base[0] as f32, base[1] as f32);
+        let cache = &mut self.ground_cache[slot];
+        if !((bx - cache[0]).hypot(by - cache[1]) <= GROUND_CACHE_SLACK) {
+            let radius = self.reach + GROUND_CACHE_SLACK + self.ground_margin;
+            *cache = [bx, by, self.ground.max_height_within(bx, by, radius)];
+        }
+        let robot_ground = cache[2];
         for c in 0..nc {
             let spec = &self.colliders[c];
             let b = spec.body;
@@ -719,11 +758,15 @@ impl ArticulatedWorld {
                 &body_position,
                 &mat_vec(&self.ws.rotation[b], &spec.sphere_center),
             );
-            let reach = spec.sphere_radius + self.ground_margin;
-            let ground = self
-                .ground
-                .max_height_within(centre[0] as f32, centre[1] as f32, reach);
-            if centre[2] as f32 - spec.sphere_radius - CONTACT_PREDICTION > ground {
+            let bottom = centre[2] as f32 - spec.sphere_radius - CONTACT_PREDICTION;
+            let clear = bottom > robot_ground || {
+                let reach = spec.sphere_radius + self.ground_margin;
+                bottom
+                    > self
+                        .ground
+                        .max_height_within(centre[0] as f32, centre[1] as f32, reach)
+            };
+            if clear {
                 if !pair.manifolds.is_empty() || pair.workspace.is_some() {
                     pair.manifolds.clear();
                     pair.workspace = None;
