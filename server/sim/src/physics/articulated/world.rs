@@ -740,7 +740,8 @@ impl ArticulatedWorld {
         // their own.
         let (bx, by) = (base[0] as f32, base[1] as f32);
         let cache = &mut self.ground_cache[slot];
-        if !((bx - cache[0]).hypot(by - cache[1]) <= GROUND_CACHE_SLACK) {
+        let stale = cache[2].is_nan() || (bx - cache[0]).hypot(by - cache[1]) > GROUND_CACHE_SLACK;
+        if stale {
             let radius = self.reach + GROUND_CACHE_SLACK + self.ground_margin;
             *cache = [bx, by, self.ground.max_height_within(bx, by, radius)];
         }
