@@ -10,13 +10,16 @@
 //! 3. unconstrained velocity `v_free = v + h M^-1 (tau - c)`;
 //! 4. contact rows from parry's contact manifolds between each robot collider and the terrain
 //!    (one normal and two friction rows per point, friction `mu` from the robot's parameters),
-//!    one row per joint at or heading into a stop; projected Gauss-Seidel ([`Rows::solve`]);
+//!    one row per joint at or heading into a stop; the Delassus matrix `J M^-1 J^T` from the
+//!    factor, projected Gauss-Seidel warm-started from the last step ([`Rows::solve`]), and
+//!    `v+ = v_free + M^-1 J^T lambda`;
 //! 5. `q <- q (+) h v+`: positions and joint angles by Euler, the base quaternion by the
 //!    exponential map of the body-frame angular velocity, renormalised.
 //!
 //! Storage is contiguous per world (`qpos`, `qvel` and the per-robot parameters as flat arrays,
-//! one shared tree and one scratch workspace): a step allocates nothing once parry's contact
-//! caches have grown to the contacts a robot meets.
+//! one shared tree, one scratch workspace, one set of rows): our code allocates nothing per
+//! step. parry's manifold update for boxes and capsules does (it rebuilds the point list, as in
+//! rapier's own narrow phase), and its caches grow as contacts appear.
 
 use std::time::Instant;
 
