@@ -284,6 +284,7 @@ impl Session {
             session_id: self.id.clone(),
             actions: Some(self.actions(actions)),
             reward_terms: false,
+            draw_envs: Vec::new(),
         };
         let r = self.client.request(req);
         Ok(Step(self.client.inner.step(r).await?.into_inner()))
@@ -361,6 +362,7 @@ impl StepStream {
             session_id,
             actions: Some(f32_tensor(actions, &[self.num_envs, per_env])),
             reward_terms,
+            draw_envs: Vec::new(),
         };
         self.tx
             .send(req)

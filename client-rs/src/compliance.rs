@@ -38,6 +38,7 @@ fn config(num_envs: u32, seed: u64, overrides: &str) -> v1::SessionConfig {
         terrain: None,
         autoreset: v1::AutoresetMode::SameStep as i32,
         reward_terms: true,
+        robot_drawing: false,
     }
 }
 

@@ -97,6 +97,9 @@ def _without(argv: Sequence[str], flags: frozenset[str]) -> list[str]:
     return kept
 
 
+VIEW_FLAGS = frozenset({"--view-envs", "--view-every"})
+
+
 def _without_watching(argv: Sequence[str]) -> list[str]:
     """``argv`` less how the run is watched: ``--view`` and its values, ``--tensorboard``."""
     kept: list[str] = []
@@ -104,8 +107,8 @@ def _without_watching(argv: Sequence[str]) -> list[str]:
     for arg in argv:
         if in_view and not arg.startswith("-"):
             continue
-        in_view = arg == "--view"
-        if not in_view and arg != "--tensorboard":
+        in_view = arg in ("--view", "--view-envs", "--view-every")
+        if not in_view and arg != "--tensorboard" and arg.split("=", 1)[0] not in VIEW_FLAGS:
             kept.append(arg)
     return kept
 
@@ -118,9 +121,16 @@ def training_command(argv: Sequence[str]) -> str:
 
 def _view_target(args: argparse.Namespace) -> LiveViewTarget | None:
     """``--view`` as a target (None without it); ViewError on a malformed one."""
-    from unigait.live_view import parse_view
+    import dataclasses
 
-    return None if args.view is None else parse_view(args.view)
+    from unigait.live_view import ViewError, parse_view
+
+    if args.view is None:
+        return None
+    if args.view_envs < 0 or args.view_every < 1:
+        raise ViewError("--view-envs must be at least 0 and --view-every at least 1")
+    target = parse_view(args.view)
+    return dataclasses.replace(target, envs=args.view_envs, every=args.view_every)
 
 
 def _train_recipe(args: argparse.Namespace) -> int:
@@ -525,6 +535,20 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="ARG",
         help="stream the run to rerun: serve [[HOST:]PORT] (loopback 127.0.0.1:9876 by default; "
         "join with rerun --connect URL), connect URL (a running viewer), or save PATH.rrd",
+    )
+    t.add_argument(
+        "--view-envs",
+        type=int,
+        default=4,
+        metavar="K",
+        help="with --view: training envs whose robots are drawn (from the server; 0: curves only)",
+    )
+    t.add_argument(
+        "--view-every",
+        type=int,
+        default=10,
+        metavar="N",
+        help="with --view: draw them during every N-th iteration's rollout",
     )
     t.add_argument(
         "--tensorboard",

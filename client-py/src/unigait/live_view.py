@@ -15,6 +15,7 @@ which is the point of watching a days-long run.
 
 from __future__ import annotations
 
+import datetime
 import math
 import shutil
 import socket
@@ -36,8 +37,15 @@ CURVES = "curves"
 EVENTS = "events"
 #: The timeline of the curves.
 TIMELINE = "iteration"
+#: Policy steps of the run (the drawn envs' poses; the curves are on ``iteration`` only).
+STEP_TIMELINE = "step"
+#: Parent of the drawn envs, as the server's recordings draw their other envs:
+#: ``world/envs/<slot>/robot/<body>`` (and the static shapes at ``.../<body>/geom<k>``).
+ENVS = "world/envs"
 #: Where ``--view serve`` listens by default: loopback, the server's ``record --serve`` port.
 DEFAULT_SERVE = "127.0.0.1:9876"
+#: Longest a curve's new row waits before it is sent (rows of a few iterations share a chunk).
+BATCH_S = 10.0
 #: What the serving process buffers for late viewers (oldest dropped beyond it).
 SERVE_MEMORY_LIMIT = "1GiB"
 
@@ -57,10 +65,14 @@ class ViewTarget:
             (a running viewer or server at ``where``) or ``save`` (an ``.rrd`` file).
         where: ``serve``: ``[HOST:]PORT`` to bind (default loopback); ``connect``: the URL;
             ``save``: the file.
+        envs: Training envs drawn (their robots, from the server); 0: curves only.
+        every: Draw them during every this many-th iteration's rollout.
     """
 
     kind: ViewKind
     where: str
+    envs: int = 4
+    every: int = 10
 
 
 def parse_view(values: Sequence[str]) -> ViewTarget:
@@ -249,7 +261,21 @@ def blueprint(names: Sequence[str], reward_terms: Sequence[str], robots: int = 0
             panel("more", name, [name])
     views: list[Any] = []
     if robots:
-        views.append(rrb.Spatial3DView(name="robots", origin="/world"))
+        views.append(
+            rrb.Tabs(
+                rrb.Spatial3DView(name="all drawn envs", origin="/world"),
+                *(
+                    rrb.Spatial3DView(
+                        name=f"env slot {k}",
+                        origin="/world",
+                        contents=[f"/{ENVS}/{k}/**"],
+                        eye_controls=rrb.EyeControls3D(tracking_entity=f"/{ENVS}/{k}/robot/base"),
+                    )
+                    for k in range(robots)
+                ),
+                name="robots",
+            )
+        )
     views += [rrb.Grid(*panels, name=tab) for tab, panels in tabs.items()]
     views.append(rrb.TextLogView(name="events", origin=f"/{EVENTS}"))
     return rrb.Blueprint(
@@ -280,12 +306,18 @@ class LiveView:
         self.target = target
         self.reward_terms = list(reward_terms)
         self.names: list[str] = []
+        #: Envs drawn (a 3D tab when non-zero; set by :class:`RobotDrawer`).
+        self.robots = 0
         #: Added to the runner's iteration on the timeline (a recipe's later stages).
         self.offset = 0
         self.url = ""
         self._server: _ServeProcess | None = None
+        # Rows wait up to BATCH_S in the batcher: a chunk holds a few iterations of a curve
+        # instead of one (measured: 100 scalars cost 123 kB per iteration flushed one by one,
+        # 15 kB in chunks of 10), at the price of curves reaching the viewer that much later.
+        batching = rr.ChunkBatcherConfig(flush_tick=datetime.timedelta(seconds=BATCH_S))
         self.rec: rr.RecordingStream = rr.RecordingStream(
-            "unigait", recording_id=recording_id(run_dir)
+            "unigait", recording_id=recording_id(run_dir), batcher_config=batching
         )
         if target.kind == "save":
             path = Path(target.where)
@@ -314,10 +346,15 @@ class LiveView:
         new = [n for n in scalars if n not in self.names]
         if new:  # the first iteration, or a scalar that appears later (an evaluation)
             self.names += new
-            rec.send_blueprint(blueprint(self.names, self.reward_terms), make_active=True)
+            self.send_blueprint()
         rec.set_time(TIMELINE, sequence=self.offset + int(scalars["iteration"]))
         for name, value in scalars.items():
             rec.log(curve(name), rr.Scalars(float(value) if math.isfinite(value) else math.nan))
+
+    def send_blueprint(self) -> None:
+        """(Re)send the layout (new scalars, drawn envs)."""
+        bp = blueprint(self.names, self.reward_terms, self.robots)
+        self.rec.send_blueprint(bp, make_active=True)
 
     def close(self) -> None:
         """Flush; stop serving (a served view ends with the run)."""
@@ -325,6 +362,113 @@ class LiveView:
         self.rec.disconnect()
         if self._server is not None:
             self._server.close()
+
+
+class RobotDrawer:
+    """Draws K training envs in a live view, from the poses the server returns.
+
+    The envs are drawn at random at the start (a fixed seed) and each is re-drawn when its
+    episode ends (a fall or a time-out), so the view keeps showing robots mid-episode. The
+    robot's shapes come from the server once (``Spec.robot_drawing_rrd``: the recordings'
+    drawing), re-rooted at ``world/envs/<slot>/robot``; every step of a drawn iteration the
+    server returns the bodies' poses of the chosen envs (``StepRequest.draw_envs``), sent to the
+    view in one batch per body at the end of the rollout.
+
+    Args:
+        view: The live view.
+        spec: The session's spec (with the robot's drawing).
+        count: Envs drawn (K).
+        every: Draw every this many iterations.
+        seed: The choice's seed.
+    """
+
+    def __init__(self, view: LiveView, spec: Any, count: int, every: int, seed: int) -> None:
+        import numpy as np
+
+        self.np = np
+        self.view = view
+        self.every = max(1, every)
+        self.bodies = list(spec.body_names)
+        self.rng = np.random.default_rng(seed)
+        n = int(spec.num_envs)
+        self.num_envs = n
+        self.slots = [int(e) for e in self.rng.choice(n, size=min(count, n), replace=False)]
+        self.poses: list[Any] = []  # per step: [K, B, 7]
+        self.steps: list[int] = []
+        self.iteration = 0
+        self._send_shapes(bytes(spec.robot_drawing_rrd))
+        view.robots = len(self.slots)
+        view.send_blueprint()
+
+    def _send_shapes(self, rrd: bytes) -> None:
+        import tempfile
+
+        from rerun.experimental import RrdReader, send_chunks
+
+        with tempfile.TemporaryDirectory() as tmp:
+            path = Path(tmp) / "robot.rrd"
+            path.write_bytes(rrd)
+            chunks = [c for c in RrdReader(path).stream() if c.entity_path.startswith("/robot/")]
+            for k in range(len(self.slots)):
+                send_chunks(
+                    [c.with_entity_path(f"/{ENVS}/{k}{c.entity_path}") for c in chunks],
+                    recording=self.view.rec,
+                )
+
+    def envs_for(self, iteration: int) -> list[int]:
+        """The envs to ask poses of in the rollout of ``iteration`` (none between draws)."""
+        return list(self.slots) if iteration % self.every == 0 else []
+
+    def add(self, iteration: int, step: int, poses: Any, dones: Any) -> None:
+        """One step's poses (f32 [K, B, 7], or None) and dones (bool [N]); re-choose ended envs."""
+        self.iteration = iteration
+        if poses is not None and len(poses) == len(self.slots):
+            self.poses.append(self.np.array(poses, dtype=self.np.float32))
+            self.steps.append(step)
+        for k, env in enumerate(self.slots):
+            if bool(dones[env]):
+                free = sorted(set(range(self.num_envs)) - set(self.slots))
+                if free:
+                    self.slots[k] = int(self.rng.choice(free))
+                    self.view.event(
+                        iteration, f"env slot {k}: env {env} ended, now env {self.slots[k]}"
+                    )
+
+    def flush(self) -> None:
+        """Send the buffered steps (one batch per body)."""
+        if not self.poses:
+            return
+        rr, np = self.view.rr, self.np
+        poses = np.stack(self.poses)  # [T, K, B, 7]
+        t = len(self.steps)
+        indexes = [
+            rr.TimeColumn(STEP_TIMELINE, sequence=self.steps),
+            rr.TimeColumn(TIMELINE, sequence=[self.view.offset + self.iteration] * t),
+        ]
+        for k in range(poses.shape[1]):
+            for b, body in enumerate(self.bodies):
+                self.view.rec.send_columns(
+                    f"{ENVS}/{k}/robot/{body}",
+                    indexes=indexes,
+                    columns=rr.Transform3D.columns(
+                        translation=poses[:, k, b, :3], quaternion=poses[:, k, b, 3:]
+                    ),
+                )
+        self.poses.clear()
+        self.steps.clear()
+
+
+def robot_drawer(view: LiveView, spec: Any, seed: int) -> RobotDrawer | None:
+    """The drawer of ``view.target``'s envs, or None (none asked, or a server too old to draw)."""
+    if view.target.envs <= 0:
+        return None
+    if not spec.body_names or not spec.robot_drawing_rrd:
+        print(
+            "warning: the server sends no robot drawing: the live view shows curves only",
+            file=sys.stderr,
+        )
+        return None
+    return RobotDrawer(view, spec, view.target.envs, view.target.every, seed)
 
 
 class TensorBoardLog:

@@ -41,6 +41,7 @@ mod terrain_mesh;
 
 pub use error::RecordError;
 pub use recorder::{APPLICATION_ID, FOOT_NAMES, RecordOptions, Recorder};
+pub use scene::robot_drawing_rrd;
 pub use terrain_mesh::{FLAT_TILE_M, TerrainMesh, terrain_mesh};
 pub use unigait_rrd::{
     DEFAULT_MEMORY_LIMIT_BYTES, DEFAULT_SERVE_PORT, MemoryLimit, RrdError, ServeOptions, Served,

@@ -123,3 +123,23 @@ pub(crate) fn log_robot_shapes(
     }
     Ok(())
 }
+
+/// The robot's drawing alone, as `.rrd` bytes: its collision shapes, static, at
+/// `robot/<body>/geom<k>` (the shapes and colours of every recording). A live view re-roots it
+/// under an env's entity and poses `.../robot/<body>` itself (`Spec.robot_drawing_rrd`).
+pub fn robot_drawing_rrd(model: &RobotModel) -> Result<Vec<u8>, RecordError> {
+    let (rec, storage) = rerun::RecordingStreamBuilder::new(crate::APPLICATION_ID)
+        .send_properties(false)
+        .memory()
+        .map_err(crate::error::open_err)?;
+    let paths = ScenePaths {
+        robot: "robot".into(),
+        feet: "feet".into(),
+        terrain: "terrain".into(),
+    };
+    log_robot_shapes(&rec, model, &paths)?;
+    rec.flush_blocking().map_err(log_err)?;
+    let bytes = storage.drain_as_bytes().map_err(log_err)?;
+    rec.disconnect();
+    Ok(bytes)
+}

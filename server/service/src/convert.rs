@@ -64,7 +64,43 @@ pub fn spec(
         task_config_toml: toml_of(cfg)?,
         autoreset: autoreset as i32,
         terrain: terrain.into(),
+        body_names: model.bodies.iter().map(|b| b.name.clone()).collect(),
+        robot_drawing_rrd: Default::default(),
     })
+}
+
+/// Most envs one step may ask poses of (`StepRequest.draw_envs`): a live view draws a few.
+pub const MAX_DRAWN_ENVS: usize = 64;
+
+/// Check `draw_envs` against a batch of `num_envs` before stepping (a refused request leaves
+/// the envs where they were).
+pub fn check_draw_envs(draw_envs: &[u32], num_envs: usize) -> Result<(), ServiceError> {
+    if draw_envs.len() > MAX_DRAWN_ENVS {
+        return Err(ServiceError::InvalidArgument(format!(
+            "StepRequest.draw_envs names {} envs; at most {MAX_DRAWN_ENVS}",
+            draw_envs.len()
+        )));
+    }
+    if let Some(&bad) = draw_envs.iter().find(|&&i| i as usize >= num_envs) {
+        return Err(ServiceError::InvalidArgument(format!(
+            "StepRequest.draw_envs: env {bad} is out of range (the session has envs 0..{num_envs})"
+        )));
+    }
+    Ok(())
+}
+
+/// f32 [K, B, 7]: each body's pose (x, y, z, qx, qy, qz, qw) of each env of `draw_envs`.
+pub fn body_poses(env: &VecEnv, draw_envs: &[u32]) -> v1::Tensor {
+    let bodies = env.model().bodies.len();
+    let mut values = Vec::with_capacity(draw_envs.len() * bodies * 7);
+    for &i in draw_envs {
+        for pose in env.body_poses(i as usize) {
+            let p = pose.translation;
+            let q: [f32; 4] = pose.rotation.into();
+            values.extend_from_slice(&[p.x, p.y, p.z, q[0], q[1], q[2], q[3]]);
+        }
+    }
+    f32_tensor(&values, &[draw_envs.len(), bodies, 7])
 }
 
 fn toml_of(cfg: &TaskConfig) -> Result<String, ServiceError> {
@@ -148,5 +184,6 @@ pub fn step_result(
         step_count,
         nonfinite_resets,
         upright_pitch: Some(out.upright_pitch),
+        body_poses: None,
     }
 }

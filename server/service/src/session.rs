@@ -207,6 +207,7 @@ impl Session {
         let n = batch.env.num_envs();
         actions.expect_shape("actions", &[n, NUM_JOINTS])?;
         let values = actions.f32_values("actions")?;
+        convert::check_draw_envs(&request.draw_envs, n)?;
         if self.panic_on_step {
             panic!("injected fault in session `{}`", self.id);
         }
@@ -215,13 +216,16 @@ impl Session {
         let steps = self.steps.fetch_add(1, Ordering::Relaxed) + 1;
         let nonfinite = (batch.env.nonfinite_resets() - before) as u32;
         let out = batch.env.output();
-        let result = convert::step_result(
+        let mut result = convert::step_result(
             out,
             self.reward_terms || request.reward_terms,
             steps,
             nonfinite,
             (!self.autoreset).then_some(&batch.ended[..]),
         );
+        if !request.draw_envs.is_empty() {
+            result.body_poses = Some(convert::body_poses(&batch.env, &request.draw_envs));
+        }
         if !self.autoreset {
             for i in 0..n {
                 let done = out.terminated[i] != 0 || out.truncated[i] != 0;
@@ -438,7 +442,13 @@ impl Sessions {
             options,
             self.pool.clone(),
         )?;
-        let spec = convert::spec(&env, autoreset, &terrain_name)?;
+        let mut spec = convert::spec(&env, autoreset, &terrain_name)?;
+        if config.robot_drawing {
+            // The recordings' drawing (server/record), once per session that asks.
+            spec.robot_drawing_rrd = unigait_record::robot_drawing_rrd(&self.model)
+                .map_err(|e| ServiceError::Internal(format!("robot drawing: {e}")))?
+                .into();
+        }
         let initial = convert::step_result(env.output(), config.reward_terms, 0, 0, None);
         let session = Arc::new(Session {
             id: uuid::Uuid::new_v4().to_string(),

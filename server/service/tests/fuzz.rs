@@ -163,6 +163,7 @@ async fn issue_14_fuzz_every_rpc_bounded() {
                     }),
                     autoreset: rng.random_range(-1..4),
                     reward_terms: rng.random(),
+                    robot_drawing: rng.random_bool(0.1),
                 };
                 let r = tokio::time::timeout(
                     t,
@@ -181,6 +182,9 @@ async fn issue_14_fuzz_every_rpc_bounded() {
                     session_id: string(&mut rng, &known),
                     actions: tensor(&mut rng),
                     reward_terms: rng.random(),
+                    draw_envs: (0..rng.random_range(0..3))
+                        .map(|_| extreme_u32(&mut rng))
+                        .collect(),
                 };
                 check("step", tokio::time::timeout(t, c.step(req)).await);
             }
@@ -197,6 +201,9 @@ async fn issue_14_fuzz_every_rpc_bounded() {
                     session_id,
                     actions: tensor(&mut rng),
                     reward_terms: rng.random(),
+                    draw_envs: (0..rng.random_range(0..3))
+                        .map(|_| extreme_u32(&mut rng))
+                        .collect(),
                 };
                 let r = tokio::time::timeout(t, async {
                     let mut s = c

@@ -95,6 +95,7 @@ fn step_request(id: &str, num_envs: usize) -> v1::StepRequest {
         session_id: id.into(),
         actions: Some(f32_tensor(&vec![0.0; num_envs * 12], &[num_envs, 12])),
         reward_terms: false,
+        draw_envs: Vec::new(),
     }
 }
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import queue
 import threading
+from collections.abc import Sequence
 from typing import Any
 
 import grpc
@@ -226,17 +227,25 @@ class Session(ClosesOnExit):
         """N."""
         return self.spec.num_envs
 
-    def _request(self, actions: np.ndarray, reward_terms: bool) -> Any:
+    def _request(
+        self, actions: np.ndarray, reward_terms: bool, draw_envs: Sequence[int] = ()
+    ) -> Any:
         return pb.StepRequest(
-            session_id=self.session_id, actions=encode(actions), reward_terms=reward_terms
+            session_id=self.session_id,
+            actions=encode(actions),
+            reward_terms=reward_terms,
+            draw_envs=draw_envs,
         )
 
-    def step(self, actions: np.ndarray, *, reward_terms: bool = False) -> StepResult:
+    def step(
+        self, actions: np.ndarray, *, reward_terms: bool = False, draw_envs: Sequence[int] = ()
+    ) -> StepResult:
         """One batched step over the session's stream (opened on first use).
 
         Args:
             actions: f32 [N, 12]; joint targets are default + action_scale * action.
             reward_terms: Include the per-term rewards even if the session does not by default.
+            draw_envs: Envs whose body poses the result carries (``body_poses``), at most 64.
 
         Returns:
             The step result; ended envs are already reset (same-step autoreset).
@@ -252,7 +261,7 @@ class Session(ClosesOnExit):
         if self._stream is None:
             self._stream = _StepStream(self.client.stub)
         try:
-            msg = self._stream.step(self._request(actions, reward_terms))
+            msg = self._stream.step(self._request(actions, reward_terms, draw_envs))
         except (UnigaitError, ProtocolError):
             self._stream = None
             raise

@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import threading
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from concurrent.futures import TimeoutError as FutureTimeoutError
 from typing import Protocol
@@ -37,8 +37,10 @@ class SessionLike(Protocol):
     spec: Spec
     initial: StepResult
 
-    def step(self, actions: np.ndarray, *, reward_terms: bool = False) -> StepResult:
-        """One batched step; ``actions`` f32 [N, 12]."""
+    def step(
+        self, actions: np.ndarray, *, reward_terms: bool = False, draw_envs: Sequence[int] = ()
+    ) -> StepResult:
+        """One batched step; ``actions`` f32 [N, 12]; ``draw_envs``: envs to return poses of."""
         ...
 
     def reset(self, mask: np.ndarray | None = None) -> StepResult:
@@ -185,6 +187,12 @@ class ShardedSession(ClosesOnExit):
         self, futures: list[Future[StepResult]], cut: bool, reward_terms: bool
     ) -> StepResult:
         """Wait for every shard, replacing lost ones (see the class docstring)."""
+        return StepResult.concat(self._gather_parts(futures, cut, reward_terms), self.offsets)
+
+    def _gather_parts(
+        self, futures: list[Future[StepResult]], cut: bool, reward_terms: bool
+    ) -> list[StepResult]:
+        """Each shard's result, lost shards replaced (see the class docstring)."""
         parts: list[StepResult] = []
         for i, f in enumerate(futures):
             try:
@@ -197,16 +205,35 @@ class ShardedSession(ClosesOnExit):
                     err = TimeoutError(f"no reply within {self._step_timeout_s} s")
                 initial = self._replace(i, err)
                 parts.append(self._cut(i, initial, reward_terms) if cut else initial)
-        return StepResult.concat(parts, self.offsets)
+        return parts
 
-    def step(self, actions: np.ndarray, *, reward_terms: bool = False) -> StepResult:
-        """One step of every shard (see :meth:`Session.step`); ``actions`` f32 [N, 12]."""
+    def step(
+        self, actions: np.ndarray, *, reward_terms: bool = False, draw_envs: Sequence[int] = ()
+    ) -> StepResult:
+        """One step of every shard (see :meth:`Session.step`); ``actions`` f32 [N, 12].
+
+        ``draw_envs`` (indices over all shards) go to their shards; the poses come back in
+        their order (none when a shard was lost in the step).
+        """
         actions = np.asarray(actions)
+        if any(not 0 <= g < self.num_envs for g in draw_envs):
+            raise ValueError(f"draw_envs {list(draw_envs)}: each must be in 0..{self.num_envs - 1}")
+        shard_of = [
+            (int(np.searchsorted(self.offsets, g, side="right")) - 1, int(g)) for g in draw_envs
+        ]
+        local = [
+            [g - self.offsets[i] for s, g in shard_of if s == i] for i in range(len(self.sessions))
+        ]
         futures = [
-            self._pool.submit(s.step, self._rows(actions, i), reward_terms=reward_terms)
+            self._pool.submit(
+                s.step, self._rows(actions, i), reward_terms=reward_terms, draw_envs=local[i]
+            )
             for i, s in enumerate(self.sessions)
         ]
-        result = self._gather(futures, True, reward_terms)
+        parts = self._gather_parts(futures, True, reward_terms)
+        result = StepResult.concat(parts, self.offsets)
+        if draw_envs:
+            result.body_poses = _poses_in_order(parts, local, [s for s, _ in shard_of])
         self._episode_steps += 1
         self._episode_steps[result.dones] = 0
         self._last = (result.obs, result.labels, result.privileged)
@@ -328,6 +355,20 @@ class ShardedSession(ClosesOnExit):
         for c, owned in zip(self._clients, self._owned, strict=True):
             if owned:
                 c.close()
+
+
+def _poses_in_order(
+    parts: Sequence[StepResult], local: Sequence[Sequence[int]], shards: Sequence[int]
+) -> np.ndarray | None:
+    """The shards' poses, rows back in the order asked (``shards``: each row's shard)."""
+    rows: dict[int, Iterator[np.ndarray]] = {}
+    for i, (part, asked) in enumerate(zip(parts, local, strict=True)):
+        if not asked:
+            continue
+        if part.body_poses is None or len(part.body_poses) != len(asked):
+            return None  # a shard replaced in this step returns none
+        rows[i] = iter(part.body_poses)
+    return np.stack([next(rows[s]) for s in shards])
 
 
 def _close_quietly(session: Session) -> None:

@@ -101,6 +101,10 @@ class Spec:
         task_config_toml: The effective task config.
         autoreset: ``"SAME_STEP"`` or ``"DISABLED"``.
         terrain: Terrain description.
+        body_names: The robot's bodies, in the order of ``StepResult.body_poses`` (empty from
+            older servers).
+        robot_drawing_rrd: The robot's shapes as a rerun recording (asked for with
+            ``SessionConfig.robot_drawing``).
     """
 
     protocol_version: str
@@ -118,6 +122,8 @@ class Spec:
     task_config_toml: str = ""
     autoreset: str = "SAME_STEP"
     terrain: str = ""
+    body_names: tuple[str, ...] = ()
+    robot_drawing_rrd: bytes = b""
 
     def tensor(self, name: str) -> TensorSpec:
         """The spec of tensor ``name``."""
@@ -217,6 +223,8 @@ class Spec:
             task_config_toml=msg.task_config_toml,
             autoreset=autoreset_name(msg.autoreset),
             terrain=msg.terrain,
+            body_names=tuple(msg.body_names),
+            robot_drawing_rrd=bytes(msg.robot_drawing_rrd),
         )
 
 

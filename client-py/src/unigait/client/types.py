@@ -28,6 +28,8 @@ class SessionConfig:
             levels a resumed run had reached; empty: drawn from ``0..=terrain_level``.
         autoreset: ``"same_step"`` (default) or ``"disabled"``.
         reward_terms: Return the per-term rewards with every step.
+        robot_drawing: Send the robot's drawing with the spec (``Spec.robot_drawing_rrd``), for
+            a live view that asks steps for envs' body poses (``draw_envs``).
     """
 
     num_envs: int
@@ -38,6 +40,7 @@ class SessionConfig:
     terrain_levels: tuple[int, ...] = ()
     autoreset: str = "same_step"
     reward_terms: bool = True
+    robot_drawing: bool = False
 
     def to_proto(self) -> Any:
         """The ``unigait.v1.SessionConfig`` message."""
@@ -56,6 +59,7 @@ class SessionConfig:
             ),
             autoreset=modes[self.autoreset],
             reward_terms=self.reward_terms,
+            robot_drawing=self.robot_drawing,
         )
 
 
@@ -111,6 +115,9 @@ class StepResult:
         upright_pitch: Pitch (rad) above which the upright indicator fires from the next step
             on: the task's ``rewards.upright_pitch`` or where its upright curriculum has got
             (the mean over shards, each of which runs its own); None from older servers.
+        body_poses: f32 [K, B, 7], each body's world pose (x, y, z, qx, qy, qz, qw) of the K
+            envs the step named in ``draw_envs`` (in that order; bodies as
+            ``Spec.body_names``); None when it named none.
     """
 
     obs: np.ndarray
@@ -131,6 +138,7 @@ class StepResult:
     nonfinite_resets: int = 0
     head_contact: np.ndarray | None = None
     upright_pitch: float | None = None
+    body_poses: np.ndarray | None = None
 
     @property
     def num_envs(self) -> int:
@@ -181,6 +189,9 @@ class StepResult:
             nonfinite_resets=int(msg.nonfinite_resets),
             head_contact=flag(msg.head_contact),
             upright_pitch=float(msg.upright_pitch) if msg.HasField("upright_pitch") else None,
+            body_poses=decode(msg.body_poses, (len(spec.body_names), 7))
+            if msg.HasField("body_poses")
+            else None,
         )
 
     @classmethod

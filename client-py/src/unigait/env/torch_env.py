@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -57,6 +58,8 @@ class TorchStep:
     terrain_level: torch.Tensor
     head_contact: torch.Tensor | None = None
     upright_pitch: float | None = None
+    #: f32 [K, B, 7] poses of the envs the step named in ``draw_envs`` (numpy: for drawing).
+    body_poses: np.ndarray | None = None
 
     @property
     def dones(self) -> torch.Tensor:
@@ -93,6 +96,7 @@ class TorchStep:
             terrain_level=_t(r.terrain_level, device, torch.int64),
             head_contact=None if r.head_contact is None else _t(r.head_contact, device),
             upright_pitch=r.upright_pitch,
+            body_poses=r.body_poses,
         )
 
 
@@ -125,17 +129,19 @@ class TorchVecEnv:
         """Open a session on one or several servers (sharded) and wrap it."""
         return cls(open_session(addresses, config), device)
 
-    def step(self, actions: torch.Tensor) -> TorchStep:
+    def step(self, actions: torch.Tensor, draw_envs: Sequence[int] = ()) -> TorchStep:
         """Step every env.
 
         Args:
             actions: f32 [N, 12] on any device.
+            draw_envs: Envs whose body poses the step returns (``body_poses``), for a live view.
 
         Returns:
             The step; ended envs are already reset (``obs`` is their new first observation).
         """
         a = actions.detach().to("cpu", torch.float32).numpy()
-        self.last = TorchStep.from_result(self.session.step(a), self.device)
+        result = self.session.step(a, draw_envs=draw_envs) if draw_envs else self.session.step(a)
+        self.last = TorchStep.from_result(result, self.device)
         return self.last
 
     def reset(self, mask: torch.Tensor | None = None) -> TorchStep:

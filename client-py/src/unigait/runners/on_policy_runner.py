@@ -20,6 +20,7 @@ from unigait.algorithms import PPO, EstimatorLearning
 from unigait.config import TrainConfig, apply, same_task
 from unigait.env import BipedPoseStats, EpisodeStats, ObservationHistory, TorchStep, TorchVecEnv
 from unigait.env.biped_pose import BIPED_MODE
+from unigait.live_view import RobotDrawer
 from unigait.modules import ActorCritic, Estimator, EstimatorActorPolicy
 from unigait.storage import RolloutStorage, bootstrap_time_outs
 from unigait.utils import Timers, TrainLogger
@@ -145,6 +146,8 @@ class OnPolicyRunner:
             self.logger = TrainLogger(log_dir, spec.reward_terms, cfg.runner.quiet)
         #: Each iteration's scalars also go to these (the CSV's names); closed by ``close``.
         self.sinks: list[ScalarSink] = []
+        #: Draws a few envs' robots in a live view (``train --view``), None without.
+        self.drawer: RobotDrawer | None = None
         if log_dir is not None and cfg.runner.tensorboard:
             from unigait.live_view import TensorBoardLog
 
@@ -187,14 +190,20 @@ class OnPolicyRunner:
             "terms": [],
             "time_out": [],
         }
-        for _ in range(self.cfg.runner.num_steps_per_env):
+        drawn = self.iteration + 1
+        draw = self.drawer.envs_for(drawn) if self.drawer is not None else []
+        for t in range(self.cfg.runner.num_steps_per_env):
             with timers.time("inference"), torch.no_grad():
                 history = self.history.flat
                 actor_obs = torch.cat([history, self.estimator(history)], dim=-1)
                 actions, log_prob, dist = ac.act(actor_obs)
                 values = ac.value(step.critic_obs)
             with timers.time("simulation"):
-                nxt = env.step(actions)
+                nxt = env.step(actions, draw) if draw else env.step(actions)
+            if draw and self.drawer is not None:
+                step_no = self.iteration * self.cfg.runner.num_steps_per_env + t + 1
+                self.drawer.add(drawn, step_no, nxt.body_poses, nxt.dones.cpu().numpy())
+                draw = list(self.drawer.slots)  # an ended env's slot follows another
             with timers.time("inference"), torch.no_grad():
                 rewards = self._bootstrapped_rewards(nxt)
                 self.storage.add(
@@ -221,6 +230,8 @@ class OnPolicyRunner:
                 terrain.add(nxt.terrain_level, nxt.mode)
             step = nxt
         self.terrain_levels = [int(x) for x in step.terrain_level.tolist()]
+        if self.drawer is not None:
+            self.drawer.flush()
         with timers.time("inference"), torch.no_grad():
             last_values = ac.value(step.critic_obs)
             self.storage.compute_returns(

@@ -27,7 +27,7 @@ from unigait.config import (
     session_config,
 )
 from unigait.env import TorchVecEnv
-from unigait.live_view import LiveView, ViewTarget
+from unigait.live_view import LiveView, ViewTarget, robot_drawer
 from unigait.milestones import milestone as load_milestone
 from unigait.provenance import git_commit
 from unigait.recipes import Recipe, Stage, stage_config
@@ -184,7 +184,10 @@ def run_stage(
     torch.manual_seed(cfg.runner.seed)
     if cfg.runner.torch_threads > 0:
         torch.set_num_threads(cfg.runner.torch_threads)
-    session = open_session(list(addresses), session_config(cfg, terrain_levels), **connection)
+    session_cfg = session_config(cfg, terrain_levels)
+    if view is not None and view.target.envs > 0:  # the robot's drawing, to draw envs with
+        session_cfg = dataclasses.replace(session_cfg, robot_drawing=True)
+    session = open_session(list(addresses), session_cfg, **connection)
     if terrain_levels:
         mean = sum(terrain_levels) / len(terrain_levels)
         log(
@@ -230,6 +233,7 @@ def run_stage(
             view.offset = view_offset - start_iteration
             view.reward_terms = list(env.spec.reward_terms)
             runner.sinks.append(view)
+            runner.drawer = robot_drawer(view, env.spec, cfg.runner.seed)
             what = "resumed" if resuming else "starts"
             view.event(
                 runner.iteration,

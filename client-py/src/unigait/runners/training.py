@@ -8,6 +8,7 @@ the networks, the stage line and provenance the checkpoints keep, and the learni
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from pathlib import Path
 
@@ -21,7 +22,7 @@ from unigait.config import (
     session_config,
 )
 from unigait.env import TorchVecEnv
-from unigait.live_view import LiveView, ViewTarget
+from unigait.live_view import LiveView, ViewTarget, robot_drawer
 from unigait.provenance import git_commit
 from unigait.runners.on_policy_runner import OnPolicyRunner
 
@@ -72,7 +73,10 @@ def train(
     log_dir = Path(cfg.runner.log_dir)
     log_dir.mkdir(parents=True, exist_ok=True)
     (log_dir / "config.toml").write_text(cfg.to_toml())
-    env = TorchVecEnv(open_session(session_config(cfg, terrain_levels)), cfg.runner.device)
+    session_cfg = session_config(cfg, terrain_levels)
+    if view is not None and view.envs > 0:  # the robot's drawing, to draw envs with
+        session_cfg = dataclasses.replace(session_cfg, robot_drawing=True)
+    env = TorchVecEnv(open_session(session_cfg), cfg.runner.device)
     if terrain_levels:
         mean = sum(terrain_levels) / len(terrain_levels)
         print(f"envs start on the terrain levels of {source} (mean {mean:.2f})")
@@ -83,6 +87,7 @@ def train(
         if view is not None:
             live = LiveView(view, log_dir, f"train {log_dir.name}", env.spec.reward_terms)
             runner.sinks.append(live)
+            runner.drawer = robot_drawer(live, env.spec, cfg.runner.seed)
         if resume:
             runner.load(resume)
             print(f"resumed from {resume} at iteration {runner.iteration}")
