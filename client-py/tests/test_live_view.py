@@ -167,3 +167,39 @@ def test_a_served_view_listens_on_loopback_and_stops_with_the_run(tmp_path):
     finally:
         view.close()
     assert view._server.proc.poll() is not None
+
+
+def test_every_m_iterations_a_milestone_evaluation_on_a_fixed_seed_goes_to_the_view(
+    fake_server, tmp_path
+):
+    address, servicer = fake_server
+    view = tmp_path / "view.rrd"
+    args = ["train", "--server", address, "--num-envs", "6", "--log-dir", str(tmp_path / "r")]
+    args += [*SMALL, "--iterations", "5", "--view", "save", str(view), "--view-eval-every", "2"]
+    assert main(args) == 0
+    # M1 is judged on tracking_quad; the recipes' validation seed, 64 envs, at iterations 2, 4.
+    assert servicer.evaluated == [("tracking_quad", 2000, 64)] * 2
+    _, series, events, _ = read_rrd(view)
+    assert series["eval/criteria_met"] == {2: 0.0, 4: 0.0}  # the fake reports no M1 metric
+    assert series["eval/tracking_quad/num_envs"] == {2: 64.0, 4: 64.0}
+    assert events[1:] == ["M1: 0/3 criteria met on seed 2000"] * 2
+    assert sorted(series["iteration"]) == [1, 2, 3, 4, 5]
+
+    # A recipe: the view's evaluations at the recipe's iterations 2 and 4, across its stages.
+    servicer.evaluated.clear()
+    recipe_view = tmp_path / "recipe.rrd"
+    command = ["train", "--server", address, "--recipe", str(two_stages(tmp_path))]
+    command += ["--log-dir", str(tmp_path / "run"), "--view", "save", str(recipe_view)]
+    assert main([*command, "--view-eval-every", "2", "--view-eval-milestone", "M2"]) == 0
+    assert [s for s, _, _ in servicer.evaluated] == [
+        "tracking_quad", "tracking_biped", "transition_biped_to_quad", "transition_quad_to_biped"
+    ] * 2  # fmt: skip
+    _, series, _, _ = read_rrd(recipe_view)
+    assert sorted(series["eval/criteria_met"]) == [2, 4]
+
+
+def test_an_unknown_evaluation_milestone_is_refused(fake_server, tmp_path, capsys):
+    address, _ = fake_server
+    args = ["train", "--server", address, "--log-dir", str(tmp_path), "--view", "save", "x.rrd"]
+    assert main([*args, "--view-eval-milestone", "M9"]) == 2
+    assert "--view-eval-milestone" in capsys.readouterr().err

@@ -10,9 +10,9 @@ import shlex
 import shutil
 import sys
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from unigait.client import (
     Client,
@@ -97,7 +97,9 @@ def _without(argv: Sequence[str], flags: frozenset[str]) -> list[str]:
     return kept
 
 
-VIEW_FLAGS = frozenset({"--view-envs", "--view-every"})
+VIEW_FLAGS = frozenset(
+    {"--view-envs", "--view-every", "--view-eval-every", "--view-eval-milestone"}
+)
 
 
 def _without_watching(argv: Sequence[str]) -> list[str]:
@@ -107,7 +109,7 @@ def _without_watching(argv: Sequence[str]) -> list[str]:
     for arg in argv:
         if in_view and not arg.startswith("-"):
             continue
-        in_view = arg in ("--view", "--view-envs", "--view-every")
+        in_view = arg in ("--view", *VIEW_FLAGS)
         if not in_view and arg != "--tensorboard" and arg.split("=", 1)[0] not in VIEW_FLAGS:
             kept.append(arg)
     return kept
@@ -127,10 +129,24 @@ def _view_target(args: argparse.Namespace) -> LiveViewTarget | None:
 
     if args.view is None:
         return None
-    if args.view_envs < 0 or args.view_every < 1:
-        raise ViewError("--view-envs must be at least 0 and --view-every at least 1")
+    if args.view_envs < 0 or args.view_every < 1 or args.view_eval_every < 0:
+        raise ViewError(
+            "--view-envs and --view-eval-every must be at least 0, --view-every at least 1"
+        )
+    from unigait.milestones import milestone
+
+    try:
+        milestone(args.view_eval_milestone)
+    except KeyError as err:
+        raise ViewError(f"--view-eval-milestone: {err.args[0]}") from None
     target = parse_view(args.view)
-    return dataclasses.replace(target, envs=args.view_envs, every=args.view_every)
+    return dataclasses.replace(
+        target,
+        envs=args.view_envs,
+        every=args.view_every,
+        eval_every=args.view_eval_every,
+        eval_milestone=args.view_eval_milestone,
+    )
 
 
 def _train_recipe(args: argparse.Namespace) -> int:
@@ -178,6 +194,20 @@ def _train_recipe(args: argparse.Namespace) -> int:
             print(f"error: {err}", file=sys.stderr)
             return 2
     return 0
+
+
+def _view_evaluation(
+    view: LiveViewTarget, address: str, connection: ConnectionOptions
+) -> Callable[[Any], dict[str, Any]]:
+    """The live view's milestone evaluation of a runner's policy (``--view-eval-every``)."""
+    from unigait.runners.recipe_runner import evaluate_milestone
+
+    def evaluate(runner: Any) -> dict[str, Any]:
+        return evaluate_milestone(
+            runner, view.eval_milestone, view.eval_envs, view.eval_seed, address, connection
+        )[1]
+
+    return evaluate
 
 
 def _fresh_log_dir(log_dir: Path, args: argparse.Namespace) -> str | None:
@@ -277,6 +307,7 @@ def _train(args: argparse.Namespace) -> int:
                 stage=stage,
                 servers=", ".join(addresses),
                 view=view,
+                evaluate=None if view is None else _view_evaluation(view, addresses[0], connection),
             )
         except (CheckpointMismatchError, ViewError) as err:
             print(f"error: {err}", file=sys.stderr)
@@ -549,6 +580,20 @@ def build_parser() -> argparse.ArgumentParser:
         default=10,
         metavar="N",
         help="with --view: draw them during every N-th iteration's rollout",
+    )
+    t.add_argument(
+        "--view-eval-every",
+        type=int,
+        default=0,
+        metavar="M",
+        help="with --view: evaluate the policy on a milestone every M iterations, on a fixed "
+        "seed (2000, the recipes' validation seed), into the view (0: never)",
+    )
+    t.add_argument(
+        "--view-eval-milestone",
+        default="M1",
+        metavar="NAME",
+        help="with --view-eval-every: the milestone (a recipe stage's own milestone first)",
     )
     t.add_argument(
         "--tensorboard",

@@ -67,12 +67,21 @@ class ViewTarget:
             ``save``: the file.
         envs: Training envs drawn (their robots, from the server); 0: curves only.
         every: Draw them during every this many-th iteration's rollout.
+        eval_every: Evaluate the policy every this many iterations (0: never; a recipe stage
+            with a milestone logs its own checks to the view in any case).
+        eval_milestone: The milestone evaluated (a recipe stage's own milestone first).
+        eval_envs: Envs per scenario.
+        eval_seed: The evaluations' fixed seed (the recipes' validation seed).
     """
 
     kind: ViewKind
     where: str
     envs: int = 4
     every: int = 10
+    eval_every: int = 0
+    eval_milestone: str = "M1"
+    eval_envs: int = 64
+    eval_seed: int = 2000
 
 
 def parse_view(values: Sequence[str]) -> ViewTarget:
@@ -222,13 +231,19 @@ def _matches(name: str, keys: Sequence[str]) -> bool:
     return any(name.startswith(k) if k.endswith("/") else name == k for k in keys)
 
 
-def blueprint(names: Sequence[str], reward_terms: Sequence[str], robots: int = 0) -> Any:
+def blueprint(
+    names: Sequence[str],
+    reward_terms: Sequence[str],
+    robots: int = 0,
+    eval_panels: Sequence[tuple[str, str]] = (),
+) -> Any:
     """The view's layout: a tab per theme, each a grid of a few time series panels.
 
     Args:
         names: The scalar names the run logs.
         reward_terms: The session's reward terms (``episode_reward/<term>``), split by mode.
         robots: Envs the view draws (a 3D tab when non-zero).
+        eval_panels: (title, scalar) of each milestone check evaluated.
     """
     import rerun.blueprint as rrb
 
@@ -252,12 +267,11 @@ def blueprint(names: Sequence[str], reward_terms: Sequence[str], robots: int = 0
             f"{mode} terms (per s of episode)",
             [f"episode_reward/{t}" for t in terms],
         )
-    evals = [n for n in names if n.startswith("eval/")]
-    for scenario in sorted({n.split("/")[1] for n in evals if n.count("/") >= 2}):
-        panel("evaluation", scenario, [n for n in evals if n.startswith(f"eval/{scenario}/")])
-    panel("evaluation", "milestone criteria met", [n for n in evals if n.count("/") == 1])
-    for name in names:  # every other scalar, one panel each
-        if name not in placed and name not in ("iteration",):
+    panel("evaluation", "milestone criteria met", ["eval/criteria_met"])
+    for title, name in eval_panels:
+        panel("evaluation", title, [name])
+    for name in names:  # every other scalar, one panel each (the unchecked eval metrics: none)
+        if name not in placed and name != "iteration" and not name.startswith("eval/"):
             panel("more", name, [name])
     views: list[Any] = []
     if robots:
@@ -308,6 +322,8 @@ class LiveView:
         self.names: list[str] = []
         #: Envs drawn (a 3D tab when non-zero; set by :class:`RobotDrawer`).
         self.robots = 0
+        #: (title, scalar) of each evaluated milestone check: the evaluation tab.
+        self.eval_panels: list[tuple[str, str]] = []
         #: Added to the runner's iteration on the timeline (a recipe's later stages).
         self.offset = 0
         self.url = ""
@@ -351,9 +367,36 @@ class LiveView:
         for name, value in scalars.items():
             rec.log(curve(name), rr.Scalars(float(value) if math.isfinite(value) else math.nan))
 
+    def log_evaluation(self, record: Mapping[str, Any]) -> None:
+        """A milestone evaluation (``evaluate_milestone``'s record) at its iteration.
+
+        Scalars ``eval/<scenario>/<metric>`` for every metric, ``eval/criteria_met`` and
+        ``eval/margin``; the evaluation tab shows the criteria met and each checked metric.
+        """
+        from unigait.milestones import milestone
+
+        target = milestone(str(record["milestone"]))
+        scalars = {"iteration": float(record["iteration"])}
+        scalars["eval/criteria_met"] = float(record["criteria_met"])
+        scalars["eval/margin"] = float(record["margin"])
+        for scenario, metrics in record["evals"].items():
+            for metric, value in metrics.items():
+                scalars[f"eval/{scenario}/{metric}"] = float(value)
+        for check in target.checks:
+            title = f"{check.label} ({check.metric} {check.op} {check.bound:g})"
+            panel = (title, f"eval/{check.scenario}/{check.metric}")
+            if panel not in self.eval_panels:
+                self.eval_panels.append(panel)
+        met, total = record["criteria_met"], record["criteria"]
+        self.event(
+            int(record["iteration"]),
+            f"{target.name}: {met}/{total} criteria met on seed {record['seed']}",
+        )
+        self.log(scalars)
+
     def send_blueprint(self) -> None:
         """(Re)send the layout (new scalars, drawn envs)."""
-        bp = blueprint(self.names, self.reward_terms, self.robots)
+        bp = blueprint(self.names, self.reward_terms, self.robots, self.eval_panels)
         self.rec.send_blueprint(bp, make_active=True)
 
     def close(self) -> None:

@@ -90,11 +90,32 @@ def _evaluate_milestone(
     runner: OnPolicyRunner, stage: Stage, address: str, connection: ConnectionOptions
 ) -> tuple[bool, dict[str, Any]]:
     """Export the current policy and judge it on the stage's milestone and validation seed."""
-    from unigait.export import export_onnx
-
     rule = stage.stop
     assert rule.milestone is not None
-    target = load_milestone(rule.milestone)
+    return evaluate_milestone(
+        runner, rule.milestone, rule.validation_envs, rule.validation_seed, address, connection
+    )
+
+
+def evaluate_milestone(
+    runner: OnPolicyRunner,
+    name: str,
+    envs: int,
+    seed: int,
+    address: str,
+    connection: ConnectionOptions,
+) -> tuple[bool, dict[str, Any]]:
+    """Export the current policy and judge it on milestone ``name`` (its scenarios on ``seed``).
+
+    The recipes' milestone checks and the live view's evaluations both come from here, so the
+    curve a user watches is the one a stage stops on.
+
+    Returns:
+        Whether every criterion is met, and the record (``validation.jsonl``'s row).
+    """
+    from unigait.export import export_onnx
+
+    target = load_milestone(name)
     evals: dict[str, dict[str, float]] = {}
     with tempfile.TemporaryDirectory() as tmp:
         onnx_path = Path(tmp) / "policy.onnx"
@@ -107,8 +128,8 @@ def _evaluate_milestone(
                 result = client.evaluate(
                     onnx,
                     scenario,
-                    num_envs=target.envs_for(scenario, rule.validation_envs),
-                    seed=rule.validation_seed,
+                    num_envs=target.envs_for(scenario, envs),
+                    seed=seed,
                 )
                 evals[scenario] = dict(result.metrics)
     met, margin = target.score(evals)
@@ -118,7 +139,7 @@ def _evaluate_milestone(
         "criteria_met": met,
         "criteria": target.criteria(),
         "margin": margin,
-        "seed": rule.validation_seed,
+        "seed": seed,
         "evals": evals,
     }
 
@@ -245,12 +266,17 @@ def run_stage(
             f"{runner.iteration + 1}-{target}"
             + (f", stops early on {rule.milestone}" if rule.milestone else "")
         )
+        view_every = view.target.eval_every if view is not None else 0
         while runner.iteration < target:
             chunk = target - runner.iteration
             if rule.milestone:
                 done_in_stage = runner.iteration - start_iteration
                 chunk = min(chunk, rule.check_every - done_in_stage % rule.check_every)
+            if view_every:
+                chunk = min(chunk, view_every - runner.iteration % view_every)
             runner.learn(chunk)
+            record: dict[str, Any] | None = None
+            met = False
             if rule.milestone and (runner.iteration - start_iteration) % rule.check_every == 0:
                 met, record = _evaluate_milestone(runner, stage, addresses[0], connection)
                 with (stage_dir / "validation.jsonl").open("a") as f:
@@ -259,8 +285,17 @@ def run_stage(
                     f"stage {stage.dir_name}: iteration {runner.iteration}: {record['milestone']} "
                     f"{record['criteria_met']}/{record['criteria']} on seed {record['seed']}"
                 )
-                if met:
-                    break
+            own = view is not None and view_every and runner.iteration % view_every == 0
+            if view is not None and own and record is None:  # the view's own evaluation
+                t = view.target
+                name = rule.milestone or t.eval_milestone
+                _, record = evaluate_milestone(
+                    runner, name, t.eval_envs, t.eval_seed, addresses[0], connection
+                )
+            if view is not None and record is not None:
+                view.log_evaluation(record)
+            if met:
+                break
         final = stage_dir / f"model_{runner.iteration}.pt"
         if not final.exists():  # nothing left to train: the resumed checkpoint is the last one
             runner.save(final)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import torch
 
@@ -37,6 +38,7 @@ def train(
     runner_class: type[OnPolicyRunner] = OnPolicyRunner,
     servers: str = "",
     view: ViewTarget | None = None,
+    evaluate: Callable[[OnPolicyRunner], dict[str, Any]] | None = None,
 ) -> list[dict[str, float]]:
     """Train ``cfg.runner.max_iterations`` (less a resumed run's) into ``cfg.runner.log_dir``.
 
@@ -51,6 +53,8 @@ def train(
         servers: Where the session runs, for the start line.
         view: Stream the run to a rerun live view (:mod:`unigait.live_view`); a resumed run
             continues the recording of its folder.
+        evaluate: Judges the policy on a milestone (``recipe_runner.evaluate_milestone``'s
+            record): every ``view.eval_every`` iterations, logged to the view.
 
     Returns:
         The logged scalars of each iteration.
@@ -105,7 +109,18 @@ def train(
             f"training {env.num_envs} envs x {cfg.runner.num_steps_per_env} steps on "
             f"{servers or 'the session'} for {remaining} iterations; output in {log_dir}"
         )
-        return runner.learn(remaining)
+        if live is None or view is None or evaluate is None or view.eval_every <= 0:
+            return runner.learn(remaining)
+        history: list[dict[str, float]] = []
+        target = runner.iteration + remaining
+        while runner.iteration < target:
+            every = view.eval_every
+            history += runner.learn(
+                min(target - runner.iteration, every - runner.iteration % every)
+            )
+            if runner.iteration % every == 0:
+                live.log_evaluation(evaluate(runner))
+        return history
     finally:
         if runner is not None:
             runner.close()
