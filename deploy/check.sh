@@ -32,15 +32,18 @@ rules="{extends: default, rules: {line-length: {max: 100}, document-start: disab
 #   base     256                                   binary, runtime, threads, terrain
 # 32 KiB per env: ~28 KB of simulation state (measured at 8192 envs) plus its reply rows. Every
 # flag must be given in the manifest, so the check never relies on the server's defaults.
+# The flags are a container's `- --flag=N` args, or (a RayCluster, whose servers the learner
+# starts) the learner's `--server-arg=--flag=N`; the limit is the first after `$3`, if given.
 memory_check() {
-    local file="$1" flag value limit
+    local file="$1" prefix="$2" after="${3:-}" flag value limit
     local -A f=()
     for flag in max-envs max-total-envs max-sessions max-evaluations policy-memory-mib; do
-        value="$(sed -n "s/^ *- --$flag=\([0-9]*\).*/\1/p" "$file" | head -n1)"
+        value="$(sed -n "s/.*$prefix--$flag=\([0-9]*\).*/\1/p" "$file" | head -n1)"
         [ -n "$value" ] || { echo "$file: give --$flag explicitly" >&2; return 1; }
         f[$flag]="$value"
     done
-    limit="$(awk '/limits:/ {l = 1} l && /memory:/ {print $2; exit}' "$file")"
+    limit="$(awk -v after="$after" 'after == "" || index($0, after) {a = 1}
+        a && /limits:/ {l = 1} l && /memory:/ {print $2; exit}' "$file")"
     case "$limit" in
         *Gi) limit=$(( ${limit%Gi} * 1024 )) ;;
         *Mi) limit=${limit%Mi} ;;
@@ -54,7 +57,8 @@ memory_check() {
         "buffers $buffers, base 256) against a limit of $limit MiB"
     [ "$total" -le "$limit" ] || { echo "$file: the worst case is over the pod's limit" >&2; return 1; }
 }
-memory_check "$here/k8s/statefulset.yaml"
+memory_check "$here/k8s/statefulset.yaml" "- "
+memory_check "$here/k8s/raycluster.yaml" "--server-arg=" "workerGroupSpecs:"
 for version in 1.30.0 1.37.0; do
     "$venv/bin/kubernetes-validate" --strict -k "$version" "$here/k8s/statefulset.yaml"
 done

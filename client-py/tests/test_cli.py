@@ -72,3 +72,16 @@ def test_server_errors_become_exit_code_2(fake_server, tmp_path, capsys):
     empty.write_bytes(b"")
     assert main(["evaluate", "--server", address, "--policy", str(empty), "--scenario", "x"]) == 2
     assert "INVALID_ARGUMENT" in capsys.readouterr().err
+
+
+def test_server_args_reach_every_ray_server(monkeypatch, tmp_path):
+    """`--server-arg` is how a pod's memory limit bounds its server (deploy/check.sh)."""
+    import unigait.ray
+
+    got: dict[str, object] = {}
+    monkeypatch.setattr(unigait.ray, "train_on_ray", lambda cfg, **kwargs: got.update(kwargs))
+    args = ["train", "--ray", "auto", "--log-dir", str(tmp_path / "run")]
+    # The `=` form: argparse takes a separate value starting with `--` for another option.
+    args += ["--server-arg=--max-total-envs=8192", "--server-arg=--max-sessions=4"]
+    assert main(args) == 0
+    assert got["pool_options"] == {"extra_args": ["--max-total-envs=8192", "--max-sessions=4"]}

@@ -291,6 +291,7 @@ def _train(args: argparse.Namespace) -> int:
                 stage=stage,
                 credentials=credentials,
                 host=None if args.server_host == "node" else args.server_host,
+                pool_options={"extra_args": list(args.server_arg or [])},
             )
         except (PermissionError, ConnectionError, PoolConfigError, CheckpointMismatchError) as err:
             print(f"error: {err}", file=sys.stderr)
@@ -528,6 +529,13 @@ def build_parser() -> argparse.ArgumentParser:
         "--tls-server-name",
         metavar="NAME",
         help="with --ray: check the servers' certificate against NAME, not their IP",
+    )
+    t.add_argument(
+        "--server-arg",
+        action="append",
+        metavar="FLAG",
+        help="with --ray: one more `serve` flag for every server, written with =, e.g. "
+        "--server-arg=--max-total-envs=8192 (how a pod's memory limit bounds its server)",
     )
     t.add_argument("--num-envs", type=int)
     t.add_argument("--iterations", type=int, help="total iterations (runner.max_iterations)")
