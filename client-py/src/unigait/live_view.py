@@ -273,28 +273,31 @@ def blueprint(
     for name in names:  # every other scalar, one panel each (the unchecked eval metrics: none)
         if name not in placed and name != "iteration" and not name.startswith("eval/"):
             panel("more", name, [name])
-    views: list[Any] = []
-    if robots:
-        views.append(
-            rrb.Tabs(
-                rrb.Spatial3DView(name="all drawn envs", origin="/world"),
-                *(
-                    rrb.Spatial3DView(
-                        name=f"env slot {k}",
-                        origin="/world",
-                        contents=[f"/{ENVS}/{k}/**"],
-                        eye_controls=rrb.EyeControls3D(tracking_entity=f"/{ENVS}/{k}/robot/base"),
-                    )
-                    for k in range(robots)
-                ),
-                name="robots",
-            )
+    curves = rrb.Tabs(
+        *(rrb.Grid(*panels, name=tab) for tab, panels in tabs.items()),
+        rrb.TextLogView(name="events", origin=f"/{EVENTS}"),
+    )
+    if not robots:
+        return rrb.Blueprint(
+            curves, rrb.TimePanel(timeline=TIMELINE, state="collapsed"), collapse_panels=True
         )
-    views += [rrb.Grid(*panels, name=tab) for tab, panels in tabs.items()]
-    views.append(rrb.TextLogView(name="events", origin=f"/{EVENTS}"))
+    # The drawn envs beside the curves: one view per env, its camera on the robot's base.
+    follow = [
+        rrb.Spatial3DView(
+            name=f"env slot {k}",
+            origin="/world",
+            contents=[f"/{ENVS}/{k}/**"],
+            eye_controls=rrb.EyeControls3D(tracking_entity=f"/{ENVS}/{k}/robot/base"),
+        )
+        for k in range(robots)
+    ]
+    robot_views = rrb.Tabs(
+        rrb.Grid(*follow, name="robots"),
+        rrb.Spatial3DView(name="all drawn envs", origin="/world"),
+    )
     return rrb.Blueprint(
-        rrb.Tabs(*views),
-        rrb.TimePanel(timeline=TIMELINE),
+        rrb.Horizontal(robot_views, curves, column_shares=[2, 3]),
+        rrb.TimePanel(timeline=TIMELINE, state="collapsed"),
         collapse_panels=True,
     )
 
