@@ -109,6 +109,13 @@ def test_a_run_saves_every_scalar_as_curves_and_a_resume_continues_its_recording
     rec_id2, series2, events2, _ = read_rrd(second)
     assert rec_id2 == rec_id and sorted(series2["iteration"]) == [3]
     assert events2 == [f"run resumed from {log_dir / 'model_2.pt'} at iteration 2"]
+    # Resumed again into the first path: that file is kept, the new part goes beside it.
+    before = first.read_bytes()
+    resume = ["--resume", str(log_dir / "model_3.pt"), "--view", "save", str(first)]
+    assert main([*args, "--iterations", "4", *resume]) == 0
+    assert first.read_bytes() == before
+    rec_id3, series3, _, _ = read_rrd(tmp_path / "view.2.rrd")
+    assert rec_id3 == rec_id and sorted(series3["iteration"]) == [4]
     # How the run was watched is not part of the recipe a checkpoint keeps.
     assert "--view" not in training_command([*args, "--view", "connect", "URL", "--tensorboard"])
     assert "--tensorboard" not in training_command([*args, "--tensorboard"])

@@ -123,6 +123,16 @@ def recording_id(run_dir: Path) -> str:
     return str(uuid.uuid5(uuid.NAMESPACE_URL, f"unigait-train:{run_dir.resolve()}"))
 
 
+def _free_path(path: Path) -> Path:
+    """``path``, or ``<stem>.<k><suffix>`` beside it when it exists (a resumed run's part)."""
+    k = 1
+    free = path
+    while free.exists():
+        k += 1
+        free = path.with_name(f"{path.stem}.{k}{path.suffix}")
+    return free
+
+
 def _rerun_cli() -> str:
     beside = Path(sys.executable).with_name("rerun")
     found = str(beside) if beside.is_file() else shutil.which("rerun")
@@ -339,7 +349,13 @@ class LiveView:
             "unigait", recording_id=recording_id(run_dir), batcher_config=batching
         )
         if target.kind == "save":
-            path = Path(target.where)
+            path = _free_path(Path(target.where))
+            if str(path) != target.where:
+                print(
+                    f"live view: {target.where} exists; writing this part to {path} (the same "
+                    f"recording: open both, rerun {target.where} {path})",
+                    file=sys.stderr,
+                )
             path.parent.mkdir(parents=True, exist_ok=True)
             self.rec.save(str(path))
             self.url = str(path)
