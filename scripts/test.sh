@@ -27,7 +27,7 @@ echo "== cargo clippy (-D warnings)"
 cargo clippy --release --workspace --all-targets --locked -- -D warnings
 
 if [ -f client-py/pyproject.toml ]; then
-  ensure_python_env
+  ensure_python_env viz  # every extra the tests use: the live view and recordings need rerun
   echo "== ruff"
   "$VENV/bin/ruff" check client-py tests
   "$VENV/bin/ruff" check --config client-py/pyproject.toml scripts/check_links.py tools
