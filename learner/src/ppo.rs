@@ -1,0 +1,603 @@
+//! PPO with the clipped value loss and the adaptive learning rate (rsl_rl's defaults), and the
+//! estimator's regression on the same rollout: the Python learner's `PPO.update` and
+//! `EstimatorLearning.update`.
+
+use burn::module::{Module, ModuleVisitor, Param};
+use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
+use burn::prelude::*;
+
+use crate::nets::{self, ActorCritic, Estimator, matrix};
+use crate::rng::Rng;
+use crate::schedule::adaptive_learning_rate;
+use crate::storage::RolloutStorage;
+
+/// PPO hyper-parameters (Table III of the paper, rsl_rl's defaults otherwise).
+#[derive(Debug, Clone, PartialEq)]
+pub struct PpoConfig {
+    /// Passes over the rollout per update (5).
+    pub num_learning_epochs: usize,
+    /// Mini-batches per pass (4).
+    pub num_mini_batches: usize,
+    /// Ratio and value clip (0.2).
+    pub clip_param: f32,
+    /// Discount (0.99).
+    pub gamma: f32,
+    /// GAE lambda (0.95).
+    pub lam: f32,
+    /// Weight of the value loss (1.0).
+    pub value_loss_coef: f64,
+    /// Weight of the entropy bonus (0.01).
+    pub entropy_coef: f64,
+    /// Initial Adam learning rate (1e-3).
+    pub learning_rate: f64,
+    /// Global gradient-norm clip (1.0).
+    pub max_grad_norm: f64,
+    /// Clip the value update like the ratio (true).
+    pub use_clipped_value_loss: bool,
+    /// KL-driven learning rate (true) or fixed.
+    pub adaptive: bool,
+    /// Target KL of the adaptive schedule (0.01).
+    pub desired_kl: f64,
+    /// Normalise advantages over the batch (true).
+    pub normalize_advantage: bool,
+}
+
+impl Default for PpoConfig {
+    fn default() -> Self {
+        Self {
+            num_learning_epochs: 5,
+            num_mini_batches: 4,
+            clip_param: 0.2,
+            gamma: 0.99,
+            lam: 0.95,
+            value_loss_coef: 1.0,
+            entropy_coef: 0.01,
+            learning_rate: 1e-3,
+            max_grad_norm: 1.0,
+            use_clipped_value_loss: true,
+            adaptive: true,
+            desired_kl: 0.01,
+            normalize_advantage: true,
+        }
+    }
+}
+
+/// Estimator hyper-parameters (Table III).
+#[derive(Debug, Clone, PartialEq)]
+pub struct EstimatorConfig {
+    /// Hidden sizes ([256, 128]).
+    pub hidden_dims: Vec<usize>,
+    /// Adam learning rate (1e-4).
+    pub learning_rate: f64,
+    /// Samples per step (768).
+    pub mini_batch_size: usize,
+    /// Passes over the rollout per iteration (5).
+    pub num_epochs: usize,
+}
+
+impl Default for EstimatorConfig {
+    fn default() -> Self {
+        Self {
+            hidden_dims: vec![256, 128],
+            learning_rate: 1e-4,
+            mini_batch_size: 768,
+            num_epochs: 5,
+        }
+    }
+}
+
+/// Mean losses of one update, and the learning rate it ended with.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct UpdateStats {
+    /// Mean clipped value loss.
+    pub value_loss: f64,
+    /// Mean clipped surrogate loss.
+    pub surrogate_loss: f64,
+    /// Mean entropy.
+    pub entropy: f64,
+    /// Mean KL(old || new) before each step.
+    pub kl: f64,
+    /// The learning rate after the update.
+    pub learning_rate: f64,
+    /// Mean action std after the update.
+    pub action_std: f64,
+}
+
+/// Clipped surrogate: `mean(max(-A r, -A clamp(r, 1 - c, 1 + c)))` with `r = exp(lp - lp_old)`.
+pub fn surrogate_loss(
+    log_prob: Tensor<1>,
+    old_log_prob: Tensor<1>,
+    advantages: Tensor<1>,
+    clip: f32,
+) -> Tensor<1> {
+    let ratio = (log_prob - old_log_prob).exp();
+    let neg_adv = advantages.neg();
+    let s1 = neg_adv.clone() * ratio.clone();
+    let s2 = neg_adv * ratio.clamp(1.0 - clip, 1.0 + clip);
+    s1.max_pair(s2).mean()
+}
+
+/// Value loss: `mean(max((V - R)^2, (V_old + clamp(V - V_old, -c, c) - R)^2))` when clipped,
+/// `mean((V - R)^2)` otherwise.
+pub fn value_loss(
+    values: Tensor<1>,
+    old_values: Tensor<1>,
+    returns: Tensor<1>,
+    clip: f32,
+    clipped: bool,
+) -> Tensor<1> {
+    let plain = (values.clone() - returns.clone()).square();
+    if !clipped {
+        return plain.mean();
+    }
+    let v_clipped = old_values.clone() + (values - old_values).clamp(-clip, clip);
+    plain.max_pair((v_clipped - returns).square()).mean()
+}
+
+/// Mean KL(old || new) over a batch of diagonal Gaussians ([`crate::schedule::gaussian_kl`]
+/// on tensors): f32 [B, A] each (`sigma_new` may be [1, A]).
+pub fn mean_gaussian_kl(
+    mu_old: Tensor<2>,
+    sigma_old: Tensor<2>,
+    mu_new: Tensor<2>,
+    sigma_new: Tensor<2>,
+) -> f64 {
+    let log_term = (sigma_new.clone() / sigma_old.clone())
+        .add_scalar(1e-5)
+        .log();
+    let quad =
+        (sigma_old.square() + (mu_old - mu_new).square()) / sigma_new.square().mul_scalar(2.0);
+    let kl: f32 = (log_term + quad)
+        .sub_scalar(0.5)
+        .sum_dim(1)
+        .mean()
+        .into_scalar();
+    f64::from(kl)
+}
+
+struct SquaredNorm<'a> {
+    grads: &'a GradientsParams,
+    sum: f64,
+}
+
+impl ModuleVisitor for SquaredNorm<'_> {
+    fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+        if let Some(g) = self.grads.get::<D>(param.id) {
+            self.sum += f64::from(g.square().sum().into_scalar::<f32>());
+        }
+    }
+}
+
+struct Scale<'a> {
+    grads: &'a mut GradientsParams,
+    coef: f64,
+}
+
+impl ModuleVisitor for Scale<'_> {
+    fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+        if let Some(g) = self.grads.remove::<D>(param.id) {
+            self.grads.register(param.id, g.mul_scalar(self.coef));
+        }
+    }
+}
+
+/// torch's `clip_grad_norm_`: when the global L2 norm of `module`'s gradients exceeds
+/// `max_norm`, scale every gradient by `max_norm / (norm + 1e-6)`. Returns the norm before.
+/// (burn's own `GradientClipping::Norm` clips each parameter tensor separately.)
+pub fn clip_grad_norm<M: Module>(grads: &mut GradientsParams, module: &M, max_norm: f64) -> f64 {
+    let mut sq = SquaredNorm { grads, sum: 0.0 };
+    module.visit(&mut sq);
+    let norm = sq.sum.sqrt();
+    let coef = max_norm / (norm + 1e-6);
+    if coef < 1.0 {
+        module.visit(&mut Scale { grads, coef });
+    }
+    norm
+}
+
+/// torch's Adam (eps 1e-8, betas 0.9 / 0.999; burn's default eps is 1e-5).
+fn adam() -> ModuleOptimizer {
+    AdamConfig::new().with_epsilon(1e-8).init()
+}
+
+/// Rows `perm` of the column block `[from, to)` of the rollout, as one tensor.
+fn shuffled(
+    storage: &RolloutStorage,
+    from: usize,
+    to: usize,
+    perm: &[u32],
+    device: &Device,
+) -> Tensor<2> {
+    let w = storage.layout.width();
+    let mut out = Vec::with_capacity(perm.len() * (to - from));
+    for &i in perm {
+        out.extend_from_slice(&storage.data[i as usize * w..][from..to]);
+    }
+    matrix(out, perm.len(), to - from, device)
+}
+
+/// The PPO update over a [`RolloutStorage`].
+pub struct Ppo {
+    /// Hyper-parameters.
+    pub cfg: PpoConfig,
+    /// The current learning rate.
+    pub learning_rate: f64,
+    optimizer: ModuleOptimizer,
+}
+
+impl Ppo {
+    /// One Adam over every parameter of the actor-critic.
+    pub fn new(cfg: PpoConfig) -> Self {
+        Self {
+            learning_rate: cfg.learning_rate,
+            cfg,
+            optimizer: adam(),
+        }
+    }
+
+    /// Run the epochs over `storage` (its returns computed); `rng` draws the permutations.
+    /// Returns the updated networks and the mean statistics.
+    pub fn update(
+        &mut self,
+        mut ac: ActorCritic,
+        storage: &RolloutStorage,
+        rng: &mut Rng,
+        device: &Device,
+    ) -> (ActorCritic, UpdateStats) {
+        let cfg = self.cfg.clone();
+        let l = storage.layout;
+        let n = storage.num_steps * storage.num_envs;
+        let size = n / cfg.num_mini_batches.max(1);
+        let first = l.actor_col();
+        let mut stats = UpdateStats::default();
+        let mut count = 0usize;
+        for _ in 0..cfg.num_learning_epochs {
+            let rows = shuffled(storage, first, l.width(), &rng.permutation(n), device);
+            for i in 0..cfg.num_mini_batches {
+                let r = i * size..(i + 1) * size;
+                let col =
+                    |c: usize, w: usize| rows.clone().slice([r.clone(), c - first..c - first + w]);
+                let vec = |c: usize| col(c, 1).squeeze_dim::<1>(1);
+                let mean = ac.actor.forward(col(l.actor_col(), l.actor_obs));
+                let log_std = ac.log_std.val();
+                let lp = nets::log_prob(
+                    col(l.actions_col(), l.actions),
+                    mean.clone(),
+                    log_std.clone(),
+                );
+                let entropy = nets::entropy(log_std.clone());
+                let values = ac.value(col(l.critic_col(), l.critic_obs));
+
+                let kl = mean_gaussian_kl(
+                    col(l.mu_col(), l.actions),
+                    col(l.sigma_col(), l.actions),
+                    mean.detach(),
+                    log_std.detach().exp().unsqueeze::<2>(),
+                );
+                if cfg.adaptive && cfg.desired_kl > 0.0 {
+                    self.learning_rate =
+                        adaptive_learning_rate(self.learning_rate, kl, cfg.desired_kl, 1e-5, 1e-2);
+                }
+
+                let surrogate = surrogate_loss(
+                    lp,
+                    vec(l.log_prob_col()),
+                    vec(l.advantage_col()),
+                    cfg.clip_param,
+                );
+                let v_loss = value_loss(
+                    values,
+                    vec(l.value_col()),
+                    vec(l.return_col()),
+                    cfg.clip_param,
+                    cfg.use_clipped_value_loss,
+                );
+                stats.value_loss += f64::from(v_loss.clone().into_scalar::<f32>());
+                stats.surrogate_loss += f64::from(surrogate.clone().into_scalar::<f32>());
+                stats.entropy += f64::from(entropy.clone().into_scalar::<f32>());
+                stats.kl += kl;
+                count += 1;
+                let loss = surrogate + v_loss.mul_scalar(cfg.value_loss_coef)
+                    - entropy.mul_scalar(cfg.entropy_coef);
+                let mut grads = GradientsParams::from_grads(loss.backward(), &ac);
+                clip_grad_norm(&mut grads, &ac, cfg.max_grad_norm);
+                ac = self.optimizer.step(self.learning_rate, ac, grads);
+            }
+        }
+        let c = count.max(1) as f64;
+        stats.value_loss /= c;
+        stats.surrogate_loss /= c;
+        stats.entropy /= c;
+        stats.kl /= c;
+        stats.learning_rate = self.learning_rate;
+        stats.action_std = f64::from(ac.log_std.val().exp().mean().into_scalar::<f32>());
+        (ac, stats)
+    }
+}
+
+/// MSE regression of the estimate on the labels from the stored histories.
+pub struct EstimatorLearning {
+    /// Hyper-parameters.
+    pub cfg: EstimatorConfig,
+    optimizer: ModuleOptimizer,
+}
+
+impl EstimatorLearning {
+    /// Adam over the estimator's parameters.
+    pub fn new(cfg: EstimatorConfig) -> Self {
+        Self {
+            cfg,
+            optimizer: adam(),
+        }
+    }
+
+    /// Run the epochs; return the updated estimator and the mean MSE. Batch k of an epoch is
+    /// `perm[k * B .. (k + 1) * B]`, as many whole batches as fit (one batch of every sample
+    /// when fewer than B).
+    pub fn update(
+        &mut self,
+        mut estimator: Estimator,
+        storage: &RolloutStorage,
+        rng: &mut Rng,
+        device: &Device,
+    ) -> (Estimator, f64) {
+        let l = storage.layout;
+        let n = storage.num_steps * storage.num_envs;
+        let b = self.cfg.mini_batch_size.min(n).max(1);
+        let (mut total, mut count) = (0.0, 0usize);
+        for _ in 0..self.cfg.num_epochs {
+            let rows = shuffled(
+                storage,
+                0,
+                l.actor_col() + l.history,
+                &rng.permutation(n),
+                device,
+            );
+            for k in 0..n / b {
+                let r = k * b..(k + 1) * b;
+                let labels = rows.clone().slice([r.clone(), 0..l.labels]);
+                let history = rows.clone().slice([r, l.labels..l.labels + l.history]);
+                let loss = (estimator.forward(history) - labels).square().mean();
+                total += f64::from(loss.clone().into_scalar::<f32>());
+                count += 1;
+                let grads = GradientsParams::from_grads(loss.backward(), &estimator);
+                estimator = self
+                    .optimizer
+                    .step(self.cfg.learning_rate, estimator, grads);
+            }
+        }
+        (estimator, total / count.max(1) as f64)
+    }
+}
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::nets::{device, values, vector};
+    use crate::storage::{Layout, Step};
+
+    fn scalar(x: Tensor<1>) -> f32 {
+        x.into_scalar()
+    }
+
+    /// ratios 1.5 and 0.5 (clip 0.2), advantages 1 and -1:
+    /// unclipped -A r = [-1.5, 0.5], clipped -A clamp(r) = [-1.2, 0.8]; max = [-1.2, 0.8],
+    /// mean -0.2. (Clipping is pessimistic: both samples take the clipped term.)
+    #[test]
+    fn surrogate_loss_on_known_numbers() {
+        let dev = device();
+        let v = |x: &[f32]| vector(x.to_vec(), &dev);
+        let loss = surrogate_loss(
+            v(&[1.5f32.ln(), 0.5f32.ln()]),
+            v(&[0.0, 0.0]),
+            v(&[1.0, -1.0]),
+            0.2,
+        );
+        assert!(
+            (scalar(loss.clone()) + 0.2).abs() < 1e-6,
+            "{}",
+            scalar(loss)
+        );
+        // Inside the clip range nothing is clipped: ratio 1.1, A = 2: -2.2.
+        let loss = surrogate_loss(v(&[1.1f32.ln()]), v(&[0.0]), v(&[2.0]), 0.2);
+        assert!((scalar(loss) + 2.2).abs() < 1e-6);
+    }
+
+    /// values [1, 0], old [0.5, 0.5], returns [2, 0], clip 0.2:
+    /// plain (V - R)^2 = [1, 0]; V_clipped = [0.7, 0.3], (V_c - R)^2 = [1.69, 0.09];
+    /// max = [1.69, 0.09], mean 0.89; unclipped mean 0.5.
+    #[test]
+    fn value_loss_on_known_numbers() {
+        let dev = device();
+        let v = |x: &[f32]| vector(x.to_vec(), &dev);
+        let clipped = value_loss(v(&[1.0, 0.0]), v(&[0.5, 0.5]), v(&[2.0, 0.0]), 0.2, true);
+        assert!((scalar(clipped) - 0.89).abs() < 1e-6);
+        let plain = value_loss(v(&[1.0, 0.0]), v(&[0.5, 0.5]), v(&[2.0, 0.0]), 0.2, false);
+        assert!((scalar(plain) - 0.5).abs() < 1e-6);
+    }
+
+    #[test]
+    fn batch_kl_matches_the_scalar_formula() {
+        let dev = device();
+        let m = |x: &[f32]| matrix(x.to_vec(), 2, 2, &dev);
+        let kl = mean_gaussian_kl(
+            m(&[0.0; 4]),
+            m(&[1.0; 4]),
+            m(&[1.0, 0.0, 0.0, 0.0]),
+            m(&[1.0, 2.0, 1.0, 1.0]),
+        );
+        // Row 0: 0.818162 (see schedule's test); row 1: 2 ln(1 + 1e-5) = 2e-5.
+        assert!((kl - (0.818162 + 2e-5) / 2.0).abs() < 1e-5, "{kl}");
+    }
+
+    #[derive(Module, Debug)]
+    struct Two {
+        a: Param<Tensor<1>>,
+        b: Param<Tensor<1>>,
+    }
+
+    /// Gradients [3, 4] (norm 5) clipped to 1 become [0.6, 0.8]; [0.3, 0.4] stay.
+    #[test]
+    fn grad_norm_clip_scales_globally() {
+        let dev = device();
+        let m = Two {
+            a: Param::from_tensor(vector(vec![1.0], &dev)),
+            b: Param::from_tensor(vector(vec![1.0], &dev)),
+        };
+        for (ka, kb, expected) in [(3.0f64, 4.0f64, [0.6, 0.8]), (0.3, 0.4, [0.3, 0.4])] {
+            let loss = m.a.val().mul_scalar(ka) + m.b.val().mul_scalar(kb);
+            let mut grads = GradientsParams::from_grads(loss.backward(), &m);
+            let norm = clip_grad_norm(&mut grads, &m, 1.0);
+            assert!((norm - (ka * ka + kb * kb).sqrt()).abs() < 1e-5);
+            let ga = values(grads.get::<1>(m.a.id).unwrap()).unwrap();
+            let gb = values(grads.get::<1>(m.b.id).unwrap()).unwrap();
+            assert!(
+                (ga[0] - expected[0]).abs() < 1e-5 && (gb[0] - expected[1]).abs() < 1e-5,
+                "{ga:?} {gb:?}"
+            );
+        }
+    }
+
+    /// A rollout where action +1 always earned advantage +1 and action -1 advantage -1: one
+    /// update must raise the actor's mean (towards +1).
+    #[test]
+    fn update_prefers_the_advantaged_action() {
+        let dev = device();
+        let layout = Layout {
+            labels: 1,
+            actor_obs: 2,
+            history: 1,
+            critic_obs: 1,
+            actions: 1,
+        };
+        let mut rng = Rng::new(0);
+        let ac = ActorCritic::new(2, 1, 1, &[8], 1.0, &mut rng, &dev);
+        let (steps, envs) = (4, 8);
+        let mut storage = RolloutStorage::new(steps, envs, layout);
+        for _ in 0..steps {
+            let actions: Vec<f32> = (0..envs)
+                .map(|e| if e % 2 == 0 { 1.0 } else { -1.0 })
+                .collect();
+            storage
+                .add(&Step {
+                    actor_obs: &vec![0.5; envs * 2],
+                    critic_obs: &vec![0.5; envs],
+                    labels: &vec![0.0; envs],
+                    actions: &actions,
+                    // log N(+-1; 0, 1) = -0.5 - 0.918939.
+                    log_prob: &vec![-1.418_938_5; envs],
+                    mu: &vec![0.0; envs],
+                    sigma: &vec![1.0; envs],
+                    values: &vec![0.0; envs],
+                    rewards: &actions,
+                    dones: &vec![true; envs],
+                })
+                .unwrap();
+        }
+        storage.compute_returns(&vec![0.0; envs], 0.99, 0.95, true);
+        let x = || matrix(vec![0.5, 0.5], 1, 2, &dev);
+        let before = values(ac.actor.forward(x())).unwrap()[0];
+        let mut ppo = Ppo::new(PpoConfig {
+            adaptive: false,
+            ..PpoConfig::default()
+        });
+        let (ac, stats) = ppo.update(ac, &storage, &mut rng, &dev);
+        let after = values(ac.actor.forward(x())).unwrap()[0];
+        assert!(after > before + 1e-3, "mean {before} -> {after}");
+        assert!(stats.value_loss > 0.0 && stats.kl >= 0.0);
+        assert_eq!(stats.learning_rate, 1e-3);
+        // Entropy of one dim with log-std near 0: 1.4189 (the bonus moved it slightly).
+        assert!((stats.entropy - 1.4189).abs() < 0.05, "{}", stats.entropy);
+    }
+
+    /// The adaptive rule runs inside the update: a rollout whose old means sit far from the
+    /// policy's gives a KL above 2 kl*, so every mini-batch divides the rate by 1.5.
+    #[test]
+    fn update_shrinks_the_rate_on_a_large_kl() {
+        let dev = device();
+        let layout = Layout {
+            labels: 1,
+            actor_obs: 2,
+            history: 1,
+            critic_obs: 1,
+            actions: 1,
+        };
+        let mut rng = Rng::new(2);
+        let ac = ActorCritic::new(2, 1, 1, &[4], 1.0, &mut rng, &dev);
+        let mut storage = RolloutStorage::new(1, 8, layout);
+        storage
+            .add(&Step {
+                actor_obs: &[0.0; 16],
+                critic_obs: &[0.0; 8],
+                labels: &[0.0; 8],
+                actions: &[0.0; 8],
+                log_prob: &[0.0; 8],
+                mu: &[5.0; 8],
+                sigma: &[1.0; 8],
+                values: &[0.0; 8],
+                rewards: &[0.0; 8],
+                dones: &[false; 8],
+            })
+            .unwrap();
+        storage.compute_returns(&[0.0; 8], 0.99, 0.95, false);
+        let cfg = PpoConfig {
+            num_learning_epochs: 1,
+            num_mini_batches: 2,
+            ..PpoConfig::default()
+        };
+        let mut ppo = Ppo::new(cfg);
+        let (_, stats) = ppo.update(ac, &storage, &mut rng, &dev);
+        // KL ~ 25 / 2 per sample >> 0.02: two mini-batches, 1e-3 / 1.5^2.
+        assert!(
+            (stats.learning_rate - 1e-3 / 2.25).abs() < 1e-12,
+            "{}",
+            stats.learning_rate
+        );
+        assert!(stats.kl > 10.0);
+    }
+
+    /// The estimator's MSE falls when the labels are a fixed function of the history.
+    #[test]
+    fn estimator_learns_a_linear_label() {
+        let dev = device();
+        let layout = Layout {
+            labels: 1,
+            actor_obs: 2,
+            history: 1,
+            critic_obs: 1,
+            actions: 1,
+        };
+        let mut rng = Rng::new(1);
+        let est = Estimator::new(1, &[16], 1, &mut rng, &dev);
+        let envs = 64;
+        let mut storage = RolloutStorage::new(1, envs, layout);
+        let h: Vec<f32> = (0..envs).map(|i| i as f32 / envs as f32).collect();
+        let actor_obs: Vec<f32> = h.iter().flat_map(|&x| [x, 0.0]).collect();
+        let labels: Vec<f32> = h.iter().map(|x| 2.0 * x - 0.5).collect();
+        storage
+            .add(&Step {
+                actor_obs: &actor_obs,
+                critic_obs: &vec![0.0; envs],
+                labels: &labels,
+                actions: &vec![0.0; envs],
+                log_prob: &vec![0.0; envs],
+                mu: &vec![0.0; envs],
+                sigma: &vec![1.0; envs],
+                values: &vec![0.0; envs],
+                rewards: &vec![0.0; envs],
+                dones: &vec![false; envs],
+            })
+            .unwrap();
+        let cfg = EstimatorConfig {
+            learning_rate: 1e-2,
+            mini_batch_size: 16,
+            ..Default::default()
+        };
+        let mut learning = EstimatorLearning::new(cfg);
+        let (mut est, first) = learning.update(est, &storage, &mut rng, &dev);
+        let mut last = first;
+        for _ in 0..10 {
+            (est, last) = learning.update(est, &storage, &mut rng, &dev);
+        }
+        assert!(last < 0.2 * first, "MSE {first} -> {last}");
+    }
+}
