@@ -14,6 +14,9 @@
 //! Prints one line: the median over `--repeats` updates (after one warm-up) of the PPO, estimator
 //! and total milliseconds, in the format of tests/data/bench_update.py.
 
+// The update's constants and helpers serve the candle path, built with bench-candle only.
+#![cfg_attr(not(feature = "bench-candle"), allow(dead_code))]
+
 use std::time::Instant;
 
 const STEPS: usize = 24;
@@ -306,187 +309,73 @@ mod candle_impl {
     }
 }
 
+/// burn: the learner's own update (`unigait_learner::ppo`), on the same rollout.
 mod burn_impl {
     use super::*;
-    use burn::module::{Module, Param};
-    use burn::nn::{Linear, LinearConfig};
-    use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
-    use burn::prelude::*;
-    use burn::tensor::activation::elu;
-
-    #[derive(Module, Debug)]
-    struct Mlp {
-        layers: Vec<Linear>,
-    }
-
-    impl Mlp {
-        fn new(dims: &[usize], device: &Device) -> Self {
-            let layers = dims
-                .windows(2)
-                .map(|w| LinearConfig::new(w[0], w[1]).init(device))
-                .collect();
-            Self { layers }
-        }
-        fn forward(&self, mut x: Tensor<2>) -> Tensor<2> {
-            let last = self.layers.len() - 1;
-            for (i, l) in self.layers.iter().enumerate() {
-                x = l.forward(x);
-                if i < last {
-                    x = elu(x, 1.0);
-                }
-            }
-            x
-        }
-    }
-
-    #[derive(Module, Debug)]
-    struct ActorCritic {
-        actor: Mlp,
-        critic: Mlp,
-        log_std: Param<Tensor<1>>,
-    }
-
-    fn dims(i: usize, hidden: &[usize], o: usize) -> Vec<usize> {
-        std::iter::once(i)
-            .chain(hidden.iter().copied())
-            .chain([o])
-            .collect()
-    }
+    use burn::prelude::Device;
+    use unigait_learner::nets::{self, ActorCritic, Estimator};
+    use unigait_learner::ppo::{EstimatorConfig, EstimatorLearning, Ppo, PpoConfig};
+    use unigait_learner::storage::{Layout, RolloutStorage};
 
     pub struct Bench {
         device: Device,
-        data: Tensor<2>,
-        n: usize,
-        rng: Rng,
+        storage: RolloutStorage,
+        rng: unigait_learner::rng::Rng,
         ac: Option<ActorCritic>,
-        estimator: Option<Mlp>,
-        opt: ModuleOptimizer,
-        est_opt: ModuleOptimizer,
-        lr: f64,
+        estimator: Option<Estimator>,
+        ppo: Ppo,
+        learning: EstimatorLearning,
     }
 
     impl Bench {
         pub fn new(envs: usize) -> Self {
-            let device = Device::flex().autodiff();
-            let n = envs * STEPS;
-            let data = Tensor::<2>::from_data(TensorData::new(rollout(n), [n, WIDTH]), &device);
-            let ac = ActorCritic {
-                actor: Mlp::new(&dims(ACTOR_IN, &HIDDEN, ACTIONS), &device),
-                critic: Mlp::new(&dims(CRITIC_IN, &HIDDEN, 1), &device),
-                log_std: Param::from_tensor(Tensor::zeros([ACTIONS], &device)),
+            let device = nets::device();
+            let layout = Layout {
+                labels: LABELS,
+                actor_obs: ACTOR_IN,
+                history: HISTORY,
+                critic_obs: CRITIC_IN,
+                actions: ACTIONS,
             };
-            let estimator = Mlp::new(&dims(HISTORY, &EST_HIDDEN, LABELS), &device);
-            // burn clips per parameter tensor (no global-norm option); close enough for timing.
-            let opt = AdamConfig::new()
-                .with_epsilon(1e-8)
-                .with_grad_clipping(Some(burn::grad_clipping::GradientClippingConfig::Norm(
-                    MAX_GRAD_NORM as f32,
-                )))
-                .init();
-            let est_opt = AdamConfig::new().with_epsilon(1e-8).init();
+            assert_eq!(
+                layout.width(),
+                WIDTH,
+                "the bench's columns are the storage's"
+            );
+            let mut storage = RolloutStorage::new(STEPS, envs, layout);
+            storage.data = rollout(envs * STEPS);
+            let mut rng = unigait_learner::rng::Rng::new(0);
+            let ac = ActorCritic::new(
+                ACTOR_IN, CRITIC_IN, ACTIONS, &HIDDEN, 1.0, &mut rng, &device,
+            );
+            let estimator = Estimator::new(HISTORY, &EST_HIDDEN, LABELS, &mut rng, &device);
             Self {
                 device,
-                data,
-                n,
-                rng: Rng(123),
+                storage,
+                rng,
                 ac: Some(ac),
                 estimator: Some(estimator),
-                opt,
-                est_opt,
-                lr: 1e-3,
+                ppo: Ppo::new(PpoConfig::default()),
+                learning: EstimatorLearning::new(EstimatorConfig::default()),
             }
-        }
-
-        fn shuffled(&mut self, from: usize, to: usize) -> Tensor<2> {
-            let perm: Vec<i64> = self
-                .rng
-                .permutation(self.n)
-                .into_iter()
-                .map(i64::from)
-                .collect();
-            let perm = Tensor::<1, Int>::from_data(TensorData::new(perm, [self.n]), &self.device);
-            self.data
-                .clone()
-                .slice([0..self.n, from..to])
-                .select(0, perm)
         }
 
         pub fn ppo(&mut self) -> f64 {
-            let size = self.n / MINI_BATCHES;
-            let half_ln_2pi = 0.5 * (2.0 * std::f64::consts::PI).ln();
-            let mut kl_sum = 0.0;
-            for _ in 0..EPOCHS {
-                let shuffled = self.shuffled(C_ACTOR, WIDTH);
-                for i in 0..MINI_BATCHES {
-                    let r = i * size..(i + 1) * size;
-                    let col = |c: usize, w: usize| {
-                        shuffled
-                            .clone()
-                            .slice([r.clone(), c - C_ACTOR..c - C_ACTOR + w])
-                    };
-                    let vec = |c: usize| col(c, 1).reshape([size]);
-                    let ac = self.ac.take().expect("model");
-                    let mean = ac.actor.forward(col(C_ACTOR, ACTOR_IN));
-                    let log_std = ac.log_std.val().unsqueeze::<2>();
-                    let std = log_std.clone().exp();
-                    let z = (col(C_ACTIONS, ACTIONS) - mean.clone()) / std.clone();
-                    let logp = (z.square().mul_scalar(-0.5) - log_std.clone())
-                        .sub_scalar(half_ln_2pi)
-                        .sum_dim(1)
-                        .reshape([size]);
-                    let entropy = log_std
-                        .sum()
-                        .add_scalar(ACTIONS as f64 * (0.5 + half_ln_2pi));
-                    let values = ac.critic.forward(col(C_CRITIC, CRITIC_IN)).reshape([size]);
-
-                    let (old_mu, old_sigma) = (col(C_MU, ACTIONS), col(C_SIGMA, ACTIONS));
-                    let (mu_d, sd_d) = (mean.detach(), std.detach());
-                    let kl: f32 = ((sd_d.clone() / old_sigma.clone()).add_scalar(1e-5).log()
-                        + (old_sigma.square() + (old_mu - mu_d).square())
-                            / sd_d.square().mul_scalar(2.0)
-                        - 0.5)
-                        .sum_dim(1)
-                        .mean()
-                        .into_scalar();
-                    kl_sum += kl as f64;
-                    self.lr = adaptive(self.lr, kl as f64);
-
-                    let ratio = (logp - vec(C_LOGP)).exp();
-                    let neg_adv = vec(C_ADV).neg();
-                    let s1 = neg_adv.clone() * ratio.clone();
-                    let s2 = neg_adv * ratio.clamp(1.0 - CLIP, 1.0 + CLIP);
-                    let surrogate = s1.max_pair(s2).mean();
-                    let old_v = vec(C_VALUES);
-                    let ret = vec(C_RET);
-                    let v_clipped = old_v.clone() + (values.clone() - old_v).clamp(-CLIP, CLIP);
-                    let value_loss = (values - ret.clone())
-                        .square()
-                        .max_pair((v_clipped - ret).square())
-                        .mean();
-                    let loss = surrogate + value_loss - entropy.mul_scalar(ENTROPY_COEF);
-                    let grads = GradientsParams::from_grads(loss.backward(), &ac);
-                    self.ac = Some(self.opt.step(self.lr, ac, grads));
-                }
-            }
-            kl_sum
+            let ac = self.ac.take().expect("networks");
+            let (ac, stats) = self
+                .ppo
+                .update(ac, &self.storage, &mut self.rng, &self.device);
+            self.ac = Some(ac);
+            stats.kl
         }
 
         pub fn estimator(&mut self) -> f64 {
-            let mut total = 0.0;
-            for _ in 0..EPOCHS {
-                let shuffled = self.shuffled(C_LABELS, C_ACTOR + HISTORY);
-                for k in 0..self.n / EST_BATCH {
-                    let r = k * EST_BATCH..(k + 1) * EST_BATCH;
-                    let labels = shuffled.clone().slice([r.clone(), 0..LABELS]);
-                    let history = shuffled.clone().slice([r, LABELS..LABELS + HISTORY]);
-                    let est = self.estimator.take().expect("model");
-                    let loss = (est.forward(history) - labels).square().mean();
-                    total += loss.clone().into_scalar::<f32>() as f64;
-                    let grads = GradientsParams::from_grads(loss.backward(), &est);
-                    self.estimator = Some(self.est_opt.step(1e-4, est, grads));
-                }
-            }
-            total
+            let est = self.estimator.take().expect("estimator");
+            let (est, loss) = self
+                .learning
+                .update(est, &self.storage, &mut self.rng, &self.device);
+            self.estimator = Some(est);
+            loss
         }
     }
 }

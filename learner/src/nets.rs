@@ -3,7 +3,7 @@
 use burn::module::{Module, Param};
 use burn::nn::Linear;
 use burn::prelude::*;
-use burn::tensor::activation::elu;
+use burn::tensor::activation::relu;
 
 use crate::rng::Rng;
 
@@ -71,11 +71,18 @@ impl Mlp {
         for (i, l) in self.layers.iter().enumerate() {
             x = l.forward(x);
             if i < last {
-                x = elu(x, 1.0);
+                x = elu(x);
             }
         }
         x
     }
+}
+
+/// ELU (alpha 1) as `relu(x) + exp(min(x, 0)) - 1`: burn's own `elu` selects with `mask_where`,
+/// which took a third of the update's time (perf, 512 envs); relu and clamp have fused backward
+/// kernels. Equal for every x: x > 0 gives x + 1 - 1, x <= 0 gives e^x - 1.
+pub fn elu<const D: usize>(x: Tensor<D>) -> Tensor<D> {
+    relu(x.clone()) + x.clamp_max(0.0).exp().sub_scalar(1.0)
 }
 
 /// A linear layer from its weight (row-major [in, out]) and bias.
@@ -164,6 +171,25 @@ mod tests {
         let y = values(mlp.forward(matrix(vec![0.0, 1.0], 2, 1, &dev))).unwrap();
         assert!((y[0] + 1.396362).abs() < 1e-5, "{y:?}");
         assert!((y[1] - 3.5).abs() < 1e-6);
+    }
+
+    /// elu(-2) = e^-2 - 1 = -0.864665, elu(0) = 0, elu(3) = 3; gradients 1 above 0, e^x below.
+    #[test]
+    fn elu_values_and_gradients() {
+        let dev = device();
+        let x = vector(vec![-2.0, 0.0, 3.0], &dev).require_grad();
+        let y = elu(x.clone());
+        let v = values(y.clone()).unwrap();
+        assert!(
+            (v[0] + 0.864_665).abs() < 1e-6 && v[1] == 0.0 && v[2] == 3.0,
+            "{v:?}"
+        );
+        let grads = y.sum().backward();
+        let g = values(x.grad(&grads).unwrap()).unwrap();
+        assert!(
+            (g[0] - (-2.0f32).exp()).abs() < 1e-6 && (g[2] - 1.0).abs() < 1e-6,
+            "{g:?}"
+        );
     }
 
     #[test]
