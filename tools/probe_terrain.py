@@ -160,7 +160,8 @@ def main() -> None:
             print(
                 f"{a.terrain} level {level}: walked {walked.mean():+.2f} m "
                 f"(quartiles {walked.quantile(0.25):+.2f} / {walked.median():+.2f} / "
-                f"{walked.quantile(0.75):+.2f}), promoted {(walked > promote_m).float().mean():.2f}, "
+                f"{walked.quantile(0.75):+.2f}), "
+                f"promoted {(walked > promote_m).float().mean():.2f}, "
                 f"demoted {(walked < DEMOTE * commanded).float().mean():.2f}, "
                 f"fell {r.fell.float().mean():.2f}, feet's 90th percentile height "
                 + "/".join(f"{h:.3f}" for h in r.apex.tolist())
