@@ -197,15 +197,7 @@ fn dropped_robot_comes_to_rest_on_flat_ground() {
 fn pd_holds_the_default_standing_pose() {
     let model = RobotModel::go2();
     let mut env = batch(articulated(""), 2, 0, 1);
-    let zeros = vec![0.0; 2 * NUM_JOINTS];
-    let mut late = Vec::new();
-    for step in 0..500 {
-        let out = env.step(&zeros).expect("step");
-        assert_eq!(out.terminated[0], 0, "fell at step {step}");
-        if step >= 250 {
-            late.push(*env.robot_state(0));
-        }
-    }
+    let late = stand(&mut env, 500, 250);
     let last = late.last().expect("states");
     println!(
         "standing: base {} m, pitch {}, q {:?}",

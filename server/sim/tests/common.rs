@@ -60,3 +60,22 @@ pub fn random_actions(n: usize, state: &mut u64) -> Vec<f32> {
 
 /// Go2 mass from our URDF (kg).
 pub const GO2_MASS: f32 = 15.019;
+
+/// Step `env` (2 envs or more) with zero actions (the default pose under PD) for `steps`
+/// steps, asserting env 0 never falls; env 0's states from step `keep_from` on.
+pub fn stand(
+    env: &mut VecEnv,
+    steps: usize,
+    keep_from: usize,
+) -> Vec<unigait_sim::physics::RobotState> {
+    let zeros = vec![0.0; env.num_envs() * NUM_JOINTS];
+    let mut late = Vec::new();
+    for step in 0..steps {
+        let out = env.step(&zeros).expect("step");
+        assert_eq!(out.terminated[0], 0, "fell at step {step}");
+        if step >= keep_from {
+            late.push(*env.robot_state(0));
+        }
+    }
+    late
+}

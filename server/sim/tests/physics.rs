@@ -11,15 +11,7 @@ use unigait_sim::task::euler_pitch;
 #[test]
 fn standing_robot_settles_and_stays_still() {
     let mut env = batch(calm_config(""), 2, 0, 1);
-    let zeros = vec![0.0; 2 * NUM_JOINTS];
-    let mut late = Vec::new();
-    for step in 0..500 {
-        let out = env.step(&zeros).expect("step");
-        assert_eq!(out.terminated[0], 0, "fell at step {step}");
-        if step >= 250 {
-            late.push(*env.robot_state(0));
-        }
-    }
+    let late = stand(&mut env, 500, 250);
     let last = late.last().expect("states");
     assert!(
         (0.255..=0.285).contains(&last.base_pos.z),
