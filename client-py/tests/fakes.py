@@ -202,6 +202,7 @@ class FakeSimulator(pb_grpc.SimulatorServicer):
         self.sims: dict[str, FakeSim] = {}
         #: (scenario, seed) of each Evaluate request, in order.
         self.evaluated: list[tuple[str, int, int]] = []  # scenario, seed, envs
+        self.evaluated_overrides: list[str] = []  # their task_overrides_toml
         #: The task overrides of each CreateSession request, in order.
         self.task_overrides: list[str] = []
 
@@ -253,6 +254,7 @@ class FakeSimulator(pb_grpc.SimulatorServicer):
         if not request.policy_onnx:
             context.abort(grpc.StatusCode.INVALID_ARGUMENT, "policy_onnx is empty")
         self.evaluated.append((request.scenario, request.seed, request.num_envs))
+        self.evaluated_overrides.append(request.task_overrides_toml)
         metrics = {"policy_bytes": float(len(request.policy_onnx)), "num_envs": request.num_envs}
         return pb.EvaluateResponse(
             metrics=metrics,

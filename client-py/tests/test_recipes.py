@@ -218,10 +218,14 @@ bound = 5
     stop += "validation_seed = 77"
     recipe = two_stages(tmp_path, stop)
     run = tmp_path / "run"
-    assert main(["train", "--server", address, "--recipe", str(recipe), "--log-dir", str(run)]) == 0
+    engine = 'env.task.physics.engine="articulated"'
+    command = ["train", "--server", address, "--recipe", str(recipe), "--log-dir", str(run)]
+    assert main([*command, "--set", engine]) == 0
     done = json.loads((run / "02_second" / "done.json").read_text())
     assert done["stage_iterations"] == 2 and done["reason"] == "milestone T met on seed 77"
     assert ("flat_quad", 77, 5) in servicer.evaluated
+    # Judged on the engine it trained on, and only that is passed (decision record 0023).
+    assert set(servicer.evaluated_overrides) == {'physics.engine = "articulated"'}
     (record,) = [
         json.loads(x) for x in (run / "02_second" / "validation.jsonl").read_text().split("\n") if x
     ]

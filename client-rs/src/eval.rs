@@ -38,6 +38,10 @@ pub struct RolloutArgs {
     /// Seed of the server's envs.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// A TOML line overriding the server's task config for this evaluation, e.g.
+    /// `--set 'physics.engine = "articulated"'` (repeatable).
+    #[arg(long = "set", value_name = "TOML")]
+    pub overrides: Vec<String>,
 }
 
 /// `unigait-client evaluate`: evaluate a policy and print its metrics.
@@ -194,6 +198,7 @@ pub fn request(args: &RolloutArgs, record_env: Option<u32>) -> Result<v1::Evalua
         seed: args.seed,
         record: record_env.is_some(),
         record_env,
+        task_overrides_toml: args.overrides.join("\n"),
     })
 }
 

@@ -354,6 +354,7 @@ def _evaluate(args: argparse.Namespace) -> int:
             record=args.record is not None,
             record_env=args.record_env,
             biped_policy_onnx=biped,
+            task_overrides_toml="\n".join(args.task_set),
         )
     for name in sorted(result.metrics):
         print(f"{name:>40} {result.metrics[name]:.4f}")
@@ -631,6 +632,14 @@ def build_parser() -> argparse.ArgumentParser:
         "--record-env", type=int, metavar="K", help="the env the recording follows (default 0)"
     )
     v.add_argument("--report", metavar="OUT.json", help="write the full JSON report")
+    v.add_argument(
+        "--set",
+        dest="task_set",
+        action="append",
+        default=[],
+        metavar="TOML",
+        help="a task config line to override (repeatable), e.g. 'physics.engine = \"articulated\"'",
+    )
     v.set_defaults(func=_evaluate)
 
     s = sub.add_parser("ship", help="export, evaluate and document a trained policy")

@@ -9,9 +9,10 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import json
 import tomllib
 import typing
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -192,6 +193,16 @@ def resume_upright_curriculum(cfg: TrainConfig, checkpoint: dict[str, Any]) -> T
         return cfg
     task = with_task_setting(task, "rewards.upright_curriculum.start", float(threshold))
     return dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, task=task))
+
+
+def engine_overrides(task: Mapping[str, Any]) -> str:
+    """The task overrides that choose ``task``'s physics engine ("" when it keeps the default).
+
+    An evaluation of a policy trained on one engine runs on that engine; the scenario sets the
+    rest of the task (decision record 0023).
+    """
+    engine = task.get("physics", {}).get("engine")
+    return f"physics.engine = {json.dumps(engine)}" if engine else ""
 
 
 def same_task(a: dict[str, Any], b: dict[str, Any]) -> bool:

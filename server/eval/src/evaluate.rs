@@ -134,7 +134,7 @@ pub fn evaluate_scenario(
         scenario.description,
         policies,
         n,
-        options.seed,
+        options,
     );
     let pushes = matches!(&scenario.kind, ScenarioKind::Tracking(t) if t.pushes);
     report.notes.push(format!(
@@ -289,14 +289,15 @@ fn empty_report(
     description: &str,
     policies: &Policies,
     num_envs: usize,
-    seed: u64,
+    options: &EvalOptions,
 ) -> EvalReport {
     EvalReport {
         scenario: scenario.into(),
         description: description.into(),
         policy: policies.kind().to_string(),
         num_envs,
-        seed,
+        seed: options.seed,
+        physics_engine: options.base_config.physics.engine.name().into(),
         metrics: BTreeMap::new(),
         traversal: None,
         transition: None,
@@ -315,7 +316,7 @@ fn evaluate_table_vi(
 ) -> Result<EvalReport, EvalError> {
     let t0 = Instant::now();
     let description = "Table VI: terrain traversal success of every column";
-    let mut report = empty_report(TABLE_VI, description, policies, 0, options.seed);
+    let mut report = empty_report(TABLE_VI, description, policies, 0, options);
     for s in table_vi_scenarios() {
         let part = evaluate_scenario(&s, policies, options, observer)?;
         report.num_envs += part.num_envs;

@@ -204,6 +204,8 @@ pub struct EvalReport {
     pub num_envs: usize,
     /// Seed.
     pub seed: u64,
+    /// The physics engine the rollouts ran on (`physics.engine`: `rapier` or `articulated`).
+    pub physics_engine: String,
     /// Scalar results by name (what the gRPC reply's map carries).
     pub metrics: BTreeMap<String, f64>,
     /// Traversal details.

@@ -21,6 +21,8 @@ use unigait_sim::robot::RobotModel;
 use unigait_sim::task::TaskConfig;
 
 use crate::error::ServiceError;
+use crate::limits::Limits;
+use crate::overrides;
 
 /// What an evaluation borrows from the server.
 #[derive(Clone)]
@@ -31,33 +33,18 @@ pub struct EvaluateContext {
     pub model: Arc<RobotModel>,
     /// The server's env worker pool (None: a pool of its own, one thread per core).
     pub pool: Option<Arc<rayon::ThreadPool>>,
-    /// Most envs an evaluation may run (the server's per-session limit).
-    pub max_envs: usize,
     /// The executable client policies are loaded and run in (a binary whose
     /// `policy-worker` subcommand runs [`unigait_policy::run_worker`]), with its limits. None:
     /// in this process, after the static checks only (tests and trusted use).
     pub policy_worker: Option<(PathBuf, SandboxLimits)>,
-    /// Longest an evaluation may run.
-    pub max_duration: Duration,
-    /// Largest Evaluate reply (bytes).
-    pub max_reply_bytes: usize,
-    /// Largest policy (bytes).
-    pub max_policy_bytes: usize,
+    /// The server's limits: envs (its per-session limit), duration, reply and policy sizes,
+    /// and the checks on a request's task overrides.
+    pub limits: Limits,
 }
 
 impl EvaluateContext {
-    /// The embedded task config and Go2, a private pool, at most `max_envs` envs.
-    pub fn new(max_envs: usize) -> Self {
-        Self {
-            base_config: TaskConfig::embedded_default(),
-            model: Arc::new(RobotModel::go2()),
-            pool: None,
-            max_envs,
-            policy_worker: None,
-            max_duration: Duration::from_secs(900),
-            max_reply_bytes: 32 << 20,
-            max_policy_bytes: 16 << 20,
-        }
+    fn max_duration(&self) -> Duration {
+        Duration::from_secs(self.limits.max_evaluation_s)
     }
 }
 
@@ -130,11 +117,11 @@ fn load(
             "EvaluateRequest.{which} is empty: send the ONNX policy's bytes"
         )));
     }
-    if bytes.len() > ctx.max_policy_bytes {
+    if bytes.len() > ctx.limits.max_policy_bytes {
         return Err(ServiceError::LimitExceeded(format!(
             "EvaluateRequest.{which} has {} bytes; this server takes policies up to {}",
             bytes.len(),
-            ctx.max_policy_bytes
+            ctx.limits.max_policy_bytes
         )));
     }
     let spec = unigait_eval::sim_policy_spec();
@@ -152,7 +139,7 @@ fn load(
         inner: policy,
         stop: stop.clone(),
         deadline,
-        max_duration: ctx.max_duration,
+        max_duration: ctx.max_duration(),
     }))
 }
 
@@ -210,12 +197,12 @@ pub fn handle(
     ctx: &EvaluateContext,
     stop: &StopFlag,
 ) -> Result<v1::EvaluateResponse, ServiceError> {
-    let deadline = Instant::now() + ctx.max_duration;
+    let deadline = Instant::now() + ctx.max_duration();
     let n = request.num_envs as usize;
-    if n > ctx.max_envs {
+    if n > ctx.limits.max_envs_per_session {
         return Err(ServiceError::LimitExceeded(format!(
             "{n} envs requested; this server evaluates at most {} (--max-envs)",
-            ctx.max_envs
+            ctx.limits.max_envs_per_session
         )));
     }
     // Check the scenario before the (slower) policy load, so a typo fails fast.
@@ -237,14 +224,22 @@ pub fn handle(
             )?,
         }
     };
+    // The scenario sets the task's commands, modes and terrain; the overrides set the rest
+    // (the physics engine a policy was trained on, friction, ...).
+    let base_config = overrides::apply(
+        &ctx.base_config,
+        &request.task_overrides_toml,
+        "EvaluateRequest.task_overrides_toml",
+        &ctx.limits,
+    )?;
     let options = EvalOptions {
         num_envs: (n > 0).then_some(n),
         seed: request.seed,
-        base_config: ctx.base_config.clone(),
+        base_config,
         model: ctx.model.clone(),
         pool: ctx.pool.clone(),
         threads: 0,
-        max_envs: ctx.max_envs,
+        max_envs: ctx.limits.max_envs_per_session,
     };
     let record_env = request.record_env.map_or(0, |k| k as usize);
     if request.record && request.scenario != unigait_eval::TABLE_VI {
@@ -304,10 +299,10 @@ pub fn handle(
         recording_rrd: recording_rrd.into(),
     };
     let size = reply.encoded_len();
-    if size > ctx.max_reply_bytes {
+    if size > ctx.limits.max_evaluation_reply_bytes {
         return Err(ServiceError::LimitExceeded(format!(
             "the evaluation's reply would be {size} bytes, over this server's limit of {}; evaluate fewer envs or record a shorter scenario",
-            ctx.max_reply_bytes
+            ctx.limits.max_evaluation_reply_bytes
         )));
     }
     Ok(reply)

@@ -6,13 +6,32 @@ use unigait_sim::task::TaskConfig;
 use crate::error::ServiceError;
 use crate::limits::{CostCaps, Limits};
 
+/// The task config a request's TOML overrides make from `base` (`base` itself when they are
+/// blank), after the checks on their shape and on the cost of the result. `field` names the
+/// request field in errors.
+pub fn apply(
+    base: &TaskConfig,
+    text: &str,
+    field: &str,
+    limits: &Limits,
+) -> Result<TaskConfig, ServiceError> {
+    let task = if text.trim().is_empty() {
+        base.clone()
+    } else {
+        check_shape(text, field, limits)?;
+        base.with_overrides(text)?
+    };
+    check_costs(&task, &limits.cost)?;
+    Ok(task)
+}
+
 /// Refuse overrides longer than the limit or nested deeper than it. The scan is conservative:
 /// it counts the brackets and braces open at once and the dots of a dotted key or a table
 /// header, outside strings and comments.
-pub fn check_shape(text: &str, limits: &Limits) -> Result<(), ServiceError> {
+fn check_shape(text: &str, field: &str, limits: &Limits) -> Result<(), ServiceError> {
     if text.len() > limits.max_overrides_bytes {
         return Err(ServiceError::InvalidArgument(format!(
-            "SessionConfig.task_overrides_toml has {} bytes; this server takes at most {}",
+            "{field} has {} bytes; this server takes at most {}",
             text.len(),
             limits.max_overrides_bytes
         )));
@@ -20,7 +39,7 @@ pub fn check_shape(text: &str, limits: &Limits) -> Result<(), ServiceError> {
     let depth = nesting_depth(text);
     if depth > limits.max_overrides_depth {
         return Err(ServiceError::InvalidArgument(format!(
-            "SessionConfig.task_overrides_toml nests {depth} levels deep; the task config has at most {} \
+            "{field} nests {depth} levels deep; the task config has at most {} \
              (tables, arrays and dotted keys count)",
             limits.max_overrides_depth
         )));
@@ -86,7 +105,7 @@ fn over(field: &str, value: impl std::fmt::Display, cap: impl std::fmt::Display)
 }
 
 /// Refuse a config whose settings make steps costlier than the server's caps allow.
-pub fn check_costs(task: &TaskConfig, caps: &CostCaps) -> Result<(), ServiceError> {
+fn check_costs(task: &TaskConfig, caps: &CostCaps) -> Result<(), ServiceError> {
     let (p, e) = (&task.physics, &task.env);
     let counts = [
         ("env.decimation", e.decimation, caps.max_decimation),

@@ -437,14 +437,11 @@ pub async fn serve(
         base_config: options.base_config.clone(),
         model: Arc::new(RobotModel::go2()),
         pool: Some(pool.clone()),
-        max_envs: limits.max_envs_per_session,
         policy_worker: options
             .policy_worker
             .clone()
             .map(|exe| (exe, options.sandbox)),
-        max_duration: Duration::from_secs(limits.max_evaluation_s),
-        max_reply_bytes: limits.max_evaluation_reply_bytes,
-        max_policy_bytes: limits.max_policy_bytes,
+        limits,
     });
     if options.policy_worker.is_none() {
         warn!("no policy worker: client policies load in the server process (static checks only)");

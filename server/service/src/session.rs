@@ -407,14 +407,12 @@ impl Sessions {
                 ))
             });
         }
-        let task = if config.task_overrides_toml.trim().is_empty() {
-            self.base_config.clone()
-        } else {
-            overrides::check_shape(&config.task_overrides_toml, &self.limits)?;
-            self.base_config
-                .with_overrides(&config.task_overrides_toml)?
-        };
-        overrides::check_costs(&task, &self.limits.cost)?;
+        let task = overrides::apply(
+            &self.base_config,
+            &config.task_overrides_toml,
+            "SessionConfig.task_overrides_toml",
+            &self.limits,
+        )?;
         let autoreset = match AutoresetMode::try_from(config.autoreset) {
             Ok(AutoresetMode::Disabled) => AutoresetMode::Disabled,
             Ok(_) => AutoresetMode::SameStep,

@@ -243,6 +243,14 @@ async fn issue_14_fuzz_every_rpc_bounded() {
                     seed: rng.random(),
                     record: rng.random(),
                     record_env: rng.random::<bool>().then(|| extreme_u32(&mut rng)),
+                    task_overrides_toml: [
+                        "",
+                        "physics.engine = \"articulated\"",
+                        "physics.engine = \"warp\"",
+                        "env.decimation = 4000",
+                        "[[[[",
+                    ][rng.random_range(0..5)]
+                        .into(),
                 };
                 check("evaluate", tokio::time::timeout(t, c.evaluate(req)).await);
             }

@@ -508,6 +508,7 @@ fn evaluate_request(policy: Vec<u8>, scenario: &str, envs: u32) -> v1::EvaluateR
         seed: 1,
         record: false,
         record_env: None,
+        task_overrides_toml: String::new(),
     }
 }
 
@@ -559,6 +560,46 @@ async fn issue_14_evaluations_are_limited_stop_with_their_caller_and_cap_their_r
     let status = small.expect_err("reply too large");
     assert_eq!(status.code(), Code::ResourceExhausted, "{status:?}");
     assert!(status.message().contains("reply"), "{}", status.message());
+    server.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_evaluation_runs_on_the_engine_its_overrides_name_and_bad_ones_are_the_clients() {
+    let server = TestServer::with_limits(Limits::default()).await;
+    let mut c = server.client().await;
+    let mut metrics = Vec::new();
+    for (overrides, engine) in [
+        ("", "rapier"),
+        ("physics.engine = \"articulated\"", "articulated"),
+    ] {
+        let mut request = evaluate_request(test_policy(), "flat_quad", 2);
+        request.task_overrides_toml = overrides.into();
+        let reply = c.evaluate(request).await.expect(overrides).into_inner();
+        let report: serde_json::Value =
+            serde_json::from_str(&reply.report_json).expect("report JSON");
+        assert_eq!(report["physics_engine"], engine, "{overrides:?}");
+        let mut m = reply.metrics;
+        m.remove("wall_s");
+        metrics.push(m);
+    }
+    // Same policy, seed and scenario: other dynamics, other figures.
+    assert_ne!(metrics[0], metrics[1]);
+    for (overrides, expected, names) in [
+        ("physics.engine = \"warp\"", Code::InvalidArgument, "warp"),
+        ("[[[[", Code::InvalidArgument, "config:"),
+        (
+            &*format!("x = {}1{}", "[".repeat(30_000), "]".repeat(30_000)),
+            Code::InvalidArgument,
+            "EvaluateRequest.task_overrides_toml",
+        ),
+        ("env.decimation = 100", Code::ResourceExhausted, "env.decimation"),
+    ] {
+        let mut request = evaluate_request(test_policy(), "flat_quad", 1);
+        request.task_overrides_toml = overrides.into();
+        let status = c.evaluate(request).await.expect_err(names);
+        assert_eq!(status.code(), expected, "{status:?}");
+        assert!(status.message().contains(names), "{}", status.message());
+    }
     server.shutdown().await;
 }
 

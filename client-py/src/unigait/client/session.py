@@ -133,6 +133,7 @@ class Client(ClosesOnExit):
         record: bool = False,
         record_env: int | None = None,
         biped_policy_onnx: bytes = b"",
+        task_overrides_toml: str = "",
     ) -> EvaluateResult:
         """Roll out an ONNX policy on the server over a named scenario.
 
@@ -145,6 +146,8 @@ class Client(ClosesOnExit):
             record_env: The env the recording follows (default 0; ``INVALID_ARGUMENT`` if the
                 scenario runs fewer envs).
             biped_policy_onnx: Optional second policy for the two-policy baseline.
+            task_overrides_toml: TOML overriding the server's task config for this evaluation
+                (e.g. ``'physics.engine = "articulated"'``); the scenario sets the rest.
         """
         req = pb.EvaluateRequest(
             policy_onnx=policy_onnx,
@@ -154,6 +157,7 @@ class Client(ClosesOnExit):
             seed=seed,
             record=record,
             record_env=record_env,
+            task_overrides_toml=task_overrides_toml,
         )
         resp = call(lambda: self.stub.Evaluate(req))
         return EvaluateResult(dict(resp.metrics), resp.report_json, bytes(resp.recording_rrd))

@@ -22,6 +22,7 @@ import torch
 from unigait.client import Client, ConnectionOptions, open_session
 from unigait.config import (
     TrainConfig,
+    engine_overrides,
     resume_upright_curriculum,
     resumed_terrain_levels,
     session_config,
@@ -108,7 +109,8 @@ def evaluate_milestone(
     """Export the current policy and judge it on milestone ``name`` (its scenarios on ``seed``).
 
     The recipes' milestone checks and the live view's evaluations both come from here, so the
-    curve a user watches is the one a stage stops on.
+    curve a user watches is the one a stage stops on. The scenarios run on the physics engine
+    the runner trains on (its task's ``physics.engine``); they set the rest of the task.
 
     Returns:
         Whether every criterion is met, and the record (``validation.jsonl``'s row).
@@ -130,6 +132,7 @@ def evaluate_milestone(
                     scenario,
                     num_envs=target.envs_for(scenario, envs),
                     seed=seed,
+                    task_overrides_toml=engine_overrides(runner.cfg.env.task),
                 )
                 evals[scenario] = dict(result.metrics)
     met, margin = target.score(evals)
