@@ -170,10 +170,27 @@ def test_a_served_view_listens_on_loopback_and_stops_with_the_run(tmp_path):
     try:
         assert view.url.startswith("rerun+http://127.0.0.1:") and view.url.endswith("/proxy")
         assert view._server is not None and view._server.proc.poll() is None
+        group = view._server.proc.pid
+        # The `rerun` launcher and the viewer binary it started.
+        assert len(_group_members(group)) >= 2
         view.log({"iteration": 1.0, "kl": 0.01})
     finally:
         view.close()
     assert view._server.proc.poll() is not None
+    assert _group_members(group) == []  # the binary did not outlive its launcher
+
+
+def _group_members(group: int) -> list[int]:
+    """Live (not zombie) processes of process group ``group``, from /proc."""
+    members = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue  # it ended while we looked
+        if int(fields[2]) == group and fields[0] != "Z":
+            members.append(int(stat.parent.name))
+    return members
 
 
 def test_every_m_iterations_a_milestone_evaluation_on_a_fixed_seed_goes_to_the_view(

@@ -17,7 +17,9 @@ from __future__ import annotations
 
 import datetime
 import math
+import os
 import shutil
+import signal
 import socket
 import subprocess
 import sys
@@ -172,6 +174,9 @@ class _ServeProcess:
             ],
             stdout=subprocess.DEVNULL,
             stderr=subprocess.DEVNULL,
+            # `rerun` is a Python launcher that starts the viewer binary as its child: signal
+            # the whole group, or the binary outlives the run.
+            start_new_session=True,
         )
         deadline = time.monotonic() + 20.0
         while True:
@@ -192,12 +197,27 @@ class _ServeProcess:
             )
 
     def close(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.terminate()
-            try:
-                self.proc.wait(5.0)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
+        group = self.proc.pid  # its own session: the group id is its pid
+        try:
+            os.killpg(group, signal.SIGTERM)
+        except ProcessLookupError:
+            return  # the launcher and the binary are gone
+        deadline = time.monotonic() + 5.0
+        while _group_alive(group) and time.monotonic() < deadline:
+            self.proc.poll()  # reap the launcher, so its pid leaves the group
+            time.sleep(0.05)
+        if _group_alive(group):
+            os.killpg(group, signal.SIGKILL)
+        self.proc.wait()
+
+
+def _group_alive(group: int) -> bool:
+    """Whether any process of process group ``group`` is still there."""
+    try:
+        os.killpg(group, 0)
+    except ProcessLookupError:
+        return False
+    return True
 
 
 def _terms_by_mode(terms: Sequence[str]) -> dict[str, list[str]]:
