@@ -346,7 +346,7 @@ mod burn_impl {
             storage.data = rollout(envs * STEPS);
             let mut rng = unigait_learner::rng::Rng::new(0);
             let ac = ActorCritic::new(
-                ACTOR_IN, CRITIC_IN, ACTIONS, &HIDDEN, 1.0, &mut rng, &device,
+                ACTOR_IN, CRITIC_IN, ACTIONS, &HIDDEN, &HIDDEN, 1.0, &mut rng, &device,
             );
             let estimator = Estimator::new(HISTORY, &EST_HIDDEN, LABELS, &mut rng, &device);
             Self {

@@ -105,18 +105,20 @@ pub struct ActorCritic {
 }
 
 impl ActorCritic {
-    /// Actor `actor_in -> hidden -> num_actions`, critic `critic_in -> hidden -> 1`.
+    /// Actor `actor_in -> actor_hidden -> num_actions`, critic `critic_in -> critic_hidden -> 1`.
+    #[allow(clippy::too_many_arguments)]
     pub fn new(
         actor_in: usize,
         critic_in: usize,
         num_actions: usize,
-        hidden: &[usize],
+        actor_hidden: &[usize],
+        critic_hidden: &[usize],
         init_noise_std: f32,
         rng: &mut Rng,
         device: &Device,
     ) -> Self {
-        let actor = Mlp::new(actor_in, hidden, num_actions, rng, device);
-        let critic = Mlp::new(critic_in, hidden, 1, rng, device);
+        let actor = Mlp::new(actor_in, actor_hidden, num_actions, rng, device);
+        let critic = Mlp::new(critic_in, critic_hidden, 1, rng, device);
         let log_std = Param::from_tensor(vector(vec![init_noise_std.ln(); num_actions], device));
         Self {
             actor,

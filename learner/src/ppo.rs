@@ -216,6 +216,22 @@ fn shuffled(
     matrix(out, perm.len(), to - from, device)
 }
 
+/// The Adam state of `optimizer` (moments and step count per parameter id) as burn's record.
+fn optimizer_bytes(optimizer: &ModuleOptimizer) -> crate::Result<Vec<u8>> {
+    let bytes = optimizer
+        .into_bytes()
+        .map_err(|e| crate::Error::Record(e.to_string()))?;
+    Ok(bytes.to_vec())
+}
+
+/// `optimizer` with the state of [`optimizer_bytes`]; the networks must carry the parameter ids
+/// the state was saved with (checkpoints restore them).
+fn load_optimizer(optimizer: ModuleOptimizer, bytes: &[u8]) -> crate::Result<ModuleOptimizer> {
+    optimizer
+        .from_bytes(burn::tensor::Bytes::from_bytes_vec(bytes.to_vec()))
+        .map_err(|e| crate::Error::Record(e.to_string()))
+}
+
 /// The PPO update over a [`RolloutStorage`].
 pub struct Ppo {
     /// Hyper-parameters.
@@ -233,6 +249,18 @@ impl Ppo {
             cfg,
             optimizer: adam(),
         }
+    }
+
+    /// The optimiser's state, for a checkpoint.
+    pub fn optimizer_bytes(&self) -> crate::Result<Vec<u8>> {
+        optimizer_bytes(&self.optimizer)
+    }
+
+    /// Restore the optimiser's state from [`Ppo::optimizer_bytes`].
+    pub fn load_optimizer(&mut self, bytes: &[u8]) -> crate::Result<()> {
+        let fresh = std::mem::replace(&mut self.optimizer, adam());
+        self.optimizer = load_optimizer(fresh, bytes)?;
+        Ok(())
     }
 
     /// Run the epochs over `storage` (its returns computed); `rng` draws the permutations.
@@ -329,6 +357,18 @@ impl EstimatorLearning {
             cfg,
             optimizer: adam(),
         }
+    }
+
+    /// The optimiser's state, for a checkpoint.
+    pub fn optimizer_bytes(&self) -> crate::Result<Vec<u8>> {
+        optimizer_bytes(&self.optimizer)
+    }
+
+    /// Restore the optimiser's state from [`EstimatorLearning::optimizer_bytes`].
+    pub fn load_optimizer(&mut self, bytes: &[u8]) -> crate::Result<()> {
+        let fresh = std::mem::replace(&mut self.optimizer, adam());
+        self.optimizer = load_optimizer(fresh, bytes)?;
+        Ok(())
     }
 
     /// Run the epochs; return the updated estimator and the mean MSE. Batch k of an epoch is
@@ -470,7 +510,7 @@ mod tests {
             actions: 1,
         };
         let mut rng = Rng::new(0);
-        let ac = ActorCritic::new(2, 1, 1, &[8], 1.0, &mut rng, &dev);
+        let ac = ActorCritic::new(2, 1, 1, &[8], &[8], 1.0, &mut rng, &dev);
         let (steps, envs) = (4, 8);
         let mut storage = RolloutStorage::new(steps, envs, layout);
         for _ in 0..steps {
@@ -522,7 +562,7 @@ mod tests {
             actions: 1,
         };
         let mut rng = Rng::new(2);
-        let ac = ActorCritic::new(2, 1, 1, &[4], 1.0, &mut rng, &dev);
+        let ac = ActorCritic::new(2, 1, 1, &[4], &[4], 1.0, &mut rng, &dev);
         let mut storage = RolloutStorage::new(1, 8, layout);
         storage
             .add(&Step {

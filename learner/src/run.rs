@@ -1,0 +1,493 @@
+//! A recipe run: every stage in order, each in its own folder of the log directory, carrying on
+//! where an interrupted run stopped (client-py's `unigait.runners.recipe_runner`).
+//!
+//! The log directory holds `recipe.toml` and `run.json` (the recipe as it started, the
+//! command's overrides), one folder per stage (`01_quad/`: `progress.csv`, `model_<it>.ckpt`,
+//! `model_latest.ckpt`, `stage.json`, and once it has ended `done.json` and `policy.onnx`),
+//! and at the end `final.ckpt` and `policy.onnx`, the fused policy the server serves. Running
+//! the same command again resumes the stage in progress from its latest checkpoint (networks,
+//! optimisers, counters, generators) and goes on; a larger `--iterations` extends the last
+//! stage.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use serde_json::json;
+use unigait_client::Client;
+
+use crate::checkpoint::Checkpoint;
+use crate::config::TrainConfig;
+use crate::learner::{Envs, Learner, Scalars, session_config};
+use crate::log::ProgressLog;
+use crate::milestone::{self, load_milestone, milestones_file};
+use crate::onnx::export_policy;
+use crate::recipe::{Recipe, Stage, Start};
+use crate::{Error, Result};
+
+const RECIPE_FILE: &str = "recipe.toml";
+const RUN_FILE: &str = "run.json";
+const STAGE_FILE: &str = "stage.json";
+const DONE_FILE: &str = "done.json";
+const LATEST: &str = "model_latest.ckpt";
+
+/// What the command line changes in every stage.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Overrides {
+    /// Each stage's length (its stop rule's iterations).
+    pub iterations: Option<u64>,
+    /// `env.num_envs`.
+    pub num_envs: Option<u32>,
+    /// `env.seed` and `runner.seed`.
+    pub seed: Option<u64>,
+}
+
+impl Overrides {
+    /// `recipe` with the overrides in every stage.
+    pub fn apply(&self, mut recipe: Recipe) -> Recipe {
+        for s in &mut recipe.stages {
+            if let Some(n) = self.iterations {
+                s.stop.iterations = n;
+            }
+            if let Some(n) = self.num_envs {
+                s.config.env.num_envs = n;
+            }
+            if let Some(seed) = self.seed {
+                s.config.env.seed = seed;
+                s.config.runner.seed = seed;
+            }
+        }
+        recipe
+    }
+}
+
+/// How a run ended.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RunSummary {
+    /// The last stage's final checkpoint, copied to `final.ckpt`.
+    pub final_checkpoint: PathBuf,
+    /// The exported policy.
+    pub policy: PathBuf,
+    /// The last stage's last iteration.
+    pub iteration: u64,
+    /// Env steps of the last stage's networks.
+    pub total_env_steps: u64,
+}
+
+fn write_json(path: &Path, value: &serde_json::Value) -> Result<()> {
+    let tmp = path.with_extension("partial");
+    let text = serde_json::to_string_pretty(value).map_err(|e| Error::Run(e.to_string()))?;
+    std::fs::write(&tmp, text + "\n")?;
+    std::fs::rename(&tmp, path)?;
+    Ok(())
+}
+
+fn read_json(path: &Path) -> Result<serde_json::Value> {
+    let text = std::fs::read_to_string(path)?;
+    serde_json::from_str(&text).map_err(|e| Error::Run(format!("{}: {e}", path.display())))
+}
+
+/// Start `log_dir` for `recipe`, or check that it holds a run of the same recipe and envs.
+fn prepare_log_dir(recipe: &Recipe, overrides: &Overrides, log_dir: &Path) -> Result<()> {
+    let stored = log_dir.join(RECIPE_FILE);
+    let run = json!({
+        "recipe": recipe.name,
+        "source": recipe.path.display().to_string(),
+        "learner": "unigait-learner",
+        "num_envs": overrides.num_envs,
+        "seed": overrides.seed,
+    });
+    if stored.exists() {
+        let same_text = std::fs::read_to_string(&stored)? == recipe.text;
+        let old = read_json(&log_dir.join(RUN_FILE)).unwrap_or_default();
+        let same_envs =
+            old.get("num_envs") == run.get("num_envs") && old.get("seed") == run.get("seed");
+        if !same_text || !same_envs {
+            return Err(Error::Run(format!(
+                "{} holds a run of another recipe text, --num-envs or --seed than this one ({}): \
+                 give another --log-dir",
+                log_dir.display(),
+                old.get("recipe").and_then(|r| r.as_str()).unwrap_or("?"),
+            )));
+        }
+    } else if log_dir.exists() && std::fs::read_dir(log_dir)?.next().is_some() {
+        return Err(Error::Run(format!(
+            "{} is not empty and holds no recipe run: give another --log-dir",
+            log_dir.display()
+        )));
+    }
+    std::fs::create_dir_all(log_dir)?;
+    std::fs::write(&stored, &recipe.text)?;
+    write_json(&log_dir.join(RUN_FILE), &run)
+}
+
+/// The fused policy of a checkpoint as ONNX bytes (what the server evaluates).
+pub fn export_checkpoint(ck: &Checkpoint) -> Result<Vec<u8>> {
+    let cfg = TrainConfig::from_table(
+        toml::from_str(&ck.header.config_toml)
+            .map_err(|e| Error::Checkpoint(format!("its config: {e}")))?,
+    )?;
+    let dims = ck.header.dims;
+    let mut learner = Learner::new(cfg, dims, 1);
+    learner.load(ck, false)?;
+    policy_onnx(&learner)
+}
+
+/// The learner's fused policy as ONNX bytes.
+pub fn policy_onnx(learner: &Learner) -> Result<Vec<u8>> {
+    let d = learner.dims;
+    export_policy(
+        learner.estimator(),
+        &learner.actor_critic().actor,
+        d.history_length,
+        d.obs,
+        d.actions,
+    )
+}
+
+/// The config a stage runs with, given the checkpoint it starts from: the upright curriculum
+/// starts where that run left it, a curriculum run's envs on the levels they had reached (as
+/// the Python learner's `resume_upright_curriculum` and `resumed_terrain_levels`).
+fn resumed_config(mut cfg: TrainConfig, source: Option<&Checkpoint>) -> (TrainConfig, Vec<u32>) {
+    let Some(ck) = source else {
+        return (cfg, Vec::new());
+    };
+    let curriculum_on = cfg
+        .env
+        .task
+        .get("rewards")
+        .and_then(|r| r.get("upright_curriculum"))
+        .and_then(|c| c.get("enabled"))
+        .and_then(toml::Value::as_bool)
+        .unwrap_or(false);
+    if let (true, Some(pitch)) = (curriculum_on, ck.header.upright_pitch) {
+        let update: toml::Table = [(
+            "rewards".to_string(),
+            toml::Value::Table(
+                [(
+                    "upright_curriculum".to_string(),
+                    toml::Value::Table(
+                        [("start".to_string(), toml::Value::Float(f64::from(pitch)))]
+                            .into_iter()
+                            .collect(),
+                    ),
+                )]
+                .into_iter()
+                .collect(),
+            ),
+        )]
+        .into_iter()
+        .collect();
+        cfg.env.task = crate::config::merged(std::mem::take(&mut cfg.env.task), &update);
+    }
+    let levels = &ck.header.terrain_levels;
+    let levels = if cfg.env.terrain == "curriculum" && levels.len() == cfg.env.num_envs as usize {
+        levels.clone()
+    } else {
+        Vec::new()
+    };
+    (cfg, levels)
+}
+
+/// One line per iteration on the log.
+fn progress_line(s: &Scalars) -> String {
+    let get = |k: &str| s.iter().find(|(n, _)| n == k).map_or(f64::NAN, |(_, v)| *v);
+    format!(
+        "it {:5} | {:6.0} steps/s | reward/step {:+.4} | ep. reward {:+.3} | ep. len {:6.1} | \
+         lr {:.2e} | std {:.3} | sim/inf/upd {:.0}%/{:.0}%/{:.0}%",
+        get("iteration"),
+        get("env_steps_per_s"),
+        get("mean_step_reward"),
+        get("mean_episode_reward"),
+        get("mean_episode_length"),
+        get("learning_rate"),
+        get("action_std"),
+        100.0 * get("time_share/simulation"),
+        100.0 * get("time_share/inference"),
+        100.0 * get("time_share/update"),
+    )
+}
+
+/// Train one stage to its stop rule, resuming its own latest checkpoint if it has one; its
+/// final checkpoint.
+async fn run_stage(
+    recipe: &Recipe,
+    stage: &Stage,
+    stage_dir: &Path,
+    previous_final: Option<&Path>,
+    client: &mut Client,
+) -> Result<(PathBuf, u64)> {
+    let latest = stage_dir.join(LATEST);
+    let resuming = latest.exists() && stage_dir.join(STAGE_FILE).exists();
+    if !resuming && stage_dir.exists() {
+        // Killed before its first checkpoint: nothing to resume, and its rows would repeat.
+        std::fs::remove_dir_all(stage_dir)?;
+    }
+    std::fs::create_dir_all(stage_dir)?;
+    let source: Option<PathBuf> = if resuming {
+        Some(latest.clone())
+    } else {
+        match &stage.start {
+            Start::Fresh => None,
+            Start::Previous => previous_final.map(Path::to_path_buf),
+            Start::Checkpoint(p) if p.extension().is_some_and(|e| e == "pt") => {
+                return Err(Error::Run(format!(
+                    "stage {} starts from {}, a Python checkpoint: the Rust learner reads its own \
+                     .ckpt files",
+                    stage.name,
+                    p.display()
+                )));
+            }
+            Start::Checkpoint(p) => Some(p.clone()),
+        }
+    };
+    let source_ck = source.as_deref().map(Checkpoint::load).transpose()?;
+    let (cfg, levels) = resumed_config(stage.config.clone(), source_ck.as_ref());
+    let mut envs = Envs::open(
+        client,
+        session_config(&cfg, &levels),
+        cfg.policy.history_length,
+    )
+    .await?;
+    let result = train_stage(
+        recipe, stage, stage_dir, cfg, &mut envs, source_ck, resuming, client,
+    )
+    .await;
+    let closed = envs.close().await;
+    let out = result?;
+    closed?;
+    Ok(out)
+}
+
+#[allow(clippy::too_many_arguments)]
+async fn train_stage(
+    recipe: &Recipe,
+    stage: &Stage,
+    stage_dir: &Path,
+    cfg: TrainConfig,
+    envs: &mut Envs,
+    source: Option<Checkpoint>,
+    resuming: bool,
+    client: &mut Client,
+) -> Result<(PathBuf, u64)> {
+    let save_interval = cfg.runner.save_interval;
+    let mut learner = Learner::new(cfg, envs.dims, envs.num_envs);
+    let mut log = ProgressLog::open(stage_dir)?;
+    let start_iteration = if resuming {
+        let ck = source.as_ref().expect("a resumed stage has its checkpoint");
+        learner.load(ck, true)?;
+        log.drop_after(learner.iteration)?;
+        let start = read_json(&stage_dir.join(STAGE_FILE))?
+            .get("start_iteration")
+            .and_then(serde_json::Value::as_u64)
+            .ok_or_else(|| Error::Run(format!("{}: no start_iteration", STAGE_FILE)))?;
+        tracing::info!(
+            "stage {}: resumed at iteration {}",
+            stage.dir_name(),
+            learner.iteration
+        );
+        start
+    } else {
+        if let Some(ck) = &source {
+            learner.load(ck, stage.carry == "all")?;
+        }
+        write_json(
+            &stage_dir.join(STAGE_FILE),
+            &json!({
+                "start_iteration": learner.iteration,
+                "carry": stage.carry,
+                "started_from": match &stage.start {
+                    Start::Fresh => serde_json::Value::Null,
+                    _ => json!(stage.start_label()),
+                },
+            }),
+        )?;
+        learner.iteration
+    };
+    learner.provenance = json!({
+        "recipe": recipe.name,
+        "recipe_text": recipe.text,
+        "stage": stage.index + 1,
+        "stage_name": stage.name,
+        "learner": concat!("unigait-learner ", env!("CARGO_PKG_VERSION")),
+    });
+    let target = start_iteration + stage.stop.iterations;
+    tracing::info!(
+        "stage {}: {} envs, iterations {}-{}",
+        stage.dir_name(),
+        envs.num_envs,
+        learner.iteration + 1,
+        target
+    );
+    let save = |learner: &Learner| -> Result<PathBuf> {
+        let ck = learner.to_checkpoint()?;
+        let path = stage_dir.join(format!("model_{}.ckpt", learner.iteration));
+        ck.save(&path)?;
+        ck.save(&stage_dir.join(LATEST))?;
+        Ok(path)
+    };
+    let rule = &stage.stop;
+    let milestone = rule
+        .milestone
+        .as_deref()
+        .map(|m| load_milestone(m, &milestones_file()))
+        .transpose()?;
+    let mut reason = "iterations".to_string();
+    while learner.iteration < target {
+        let scalars = learner.iterate(envs).await?;
+        log.log(&scalars)?;
+        tracing::info!("{}", progress_line(&scalars));
+        let check = milestone
+            .as_ref()
+            .filter(|_| (learner.iteration - start_iteration).is_multiple_of(rule.check_every));
+        if learner.iteration.is_multiple_of(save_interval)
+            || learner.iteration == target
+            || check.is_some()
+        {
+            save(&learner)?;
+        }
+        if let Some(m) = check {
+            // The stage's stop rule: the current policy on the validation seed, as the
+            // Python learner's recipe runner judges it (validation.jsonl has the same rows).
+            let onnx = policy_onnx(&learner)?;
+            let evals =
+                milestone::evaluate(client, m, &onnx, rule.validation_envs, rule.validation_seed)
+                    .await?;
+            let met = m.score(&evals);
+            let record = json!({
+                "iteration": learner.iteration,
+                "milestone": m.name,
+                "criteria_met": met,
+                "criteria": m.criteria(),
+                "seed": rule.validation_seed,
+                "evals": evals,
+            });
+            let mut f = std::fs::OpenOptions::new()
+                .create(true)
+                .append(true)
+                .open(stage_dir.join("validation.jsonl"))?;
+            writeln!(f, "{record}")?;
+            tracing::info!(
+                "stage {}: iteration {}: {} {met}/{} on seed {}",
+                stage.dir_name(),
+                learner.iteration,
+                m.name,
+                m.criteria(),
+                rule.validation_seed
+            );
+            if m.met(&evals) {
+                reason = format!("milestone {} met on seed {}", m.name, rule.validation_seed);
+                break;
+            }
+        }
+    }
+    let final_path = stage_dir.join(format!("model_{}.ckpt", learner.iteration));
+    if !final_path.exists() {
+        save(&learner)?;
+    }
+    std::fs::write(stage_dir.join("policy.onnx"), policy_onnx(&learner)?)?;
+    write_json(
+        &stage_dir.join(DONE_FILE),
+        &json!({
+            "final_checkpoint": final_path.file_name().and_then(|n| n.to_str()),
+            "iteration": learner.iteration,
+            "stage_iterations": learner.iteration - start_iteration,
+            "env_steps": learner.total_env_steps,
+            "reason": reason,
+        }),
+    )?;
+    Ok((final_path, learner.iteration))
+}
+
+impl Stage {
+    fn start_label(&self) -> String {
+        match &self.start {
+            Start::Fresh => "fresh".into(),
+            Start::Previous => "previous".into(),
+            Start::Checkpoint(p) => p.display().to_string(),
+        }
+    }
+}
+
+/// Whether the stage in `stage_dir` has met its milestone or trained to `iterations` past its
+/// start.
+fn stage_ended(stage_dir: &Path, iterations: u64) -> Result<bool> {
+    let (latest, started) = (stage_dir.join(LATEST), stage_dir.join(STAGE_FILE));
+    if !latest.exists() || !started.exists() {
+        return Ok(false);
+    }
+    let done = stage_dir.join(DONE_FILE);
+    if done.exists()
+        && read_json(&done)?
+            .get("reason")
+            .and_then(serde_json::Value::as_str)
+            .is_some_and(|r| r.starts_with("milestone"))
+    {
+        return Ok(true);
+    }
+    let start = read_json(&started)?
+        .get("start_iteration")
+        .and_then(serde_json::Value::as_u64)
+        .unwrap_or(0);
+    Ok(Checkpoint::load(&latest)?.header.iteration >= start + iterations)
+}
+
+/// Every stage of `recipe` not ended yet, in order, over the server at `address`; then
+/// `final.ckpt` and `policy.onnx` in `log_dir`.
+pub async fn run_recipe(
+    recipe: Recipe,
+    overrides: &Overrides,
+    log_dir: &Path,
+    address: &str,
+) -> Result<RunSummary> {
+    if let Some(s) = recipe.stages.iter().find(|s| !s.runs_at_head) {
+        return Err(Error::Run(format!(
+            "recipe {} records stages that ran on code that no longer exists ({}): it documents \
+             history; train a recipe that runs at this commit",
+            recipe.name, s.name
+        )));
+    }
+    prepare_log_dir(&recipe, overrides, log_dir)?;
+    let recipe = overrides.apply(recipe);
+    let mut client = Client::connect(address).await?;
+    let mut final_path: Option<PathBuf> = None;
+    for (i, stage) in recipe.stages.iter().enumerate() {
+        let stage_dir = log_dir.join(stage.dir_name());
+        // A stage is over when it reached its length, or when a later stage has started
+        // from it (its history is not rewritten).
+        let later_started = recipe.stages[i + 1..]
+            .iter()
+            .any(|s| log_dir.join(s.dir_name()).join(STAGE_FILE).exists());
+        if later_started || stage_ended(&stage_dir, stage.stop.iterations)? {
+            tracing::info!("stage {}: ended before", stage.dir_name());
+            final_path = Some(stage_dir.join(LATEST));
+            continue;
+        }
+        let (path, _) = run_stage(
+            &recipe,
+            stage,
+            &stage_dir,
+            final_path.as_deref(),
+            &mut client,
+        )
+        .await?;
+        final_path = Some(path);
+    }
+    let final_path = final_path.ok_or_else(|| Error::Run("a recipe without stages".into()))?;
+    let ck = Checkpoint::load(&final_path)?;
+    ck.save(&log_dir.join("final.ckpt"))?;
+    let policy = log_dir.join("policy.onnx");
+    std::fs::write(&policy, export_checkpoint(&ck)?)?;
+    tracing::info!(
+        "recipe {} done: {} (from {}), {}",
+        recipe.name,
+        log_dir.join("final.ckpt").display(),
+        final_path.display(),
+        policy.display()
+    );
+    Ok(RunSummary {
+        final_checkpoint: log_dir.join("final.ckpt"),
+        policy,
+        iteration: ck.header.iteration,
+        total_env_steps: ck.header.total_env_steps,
+    })
+}

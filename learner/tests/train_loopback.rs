@@ -1,0 +1,168 @@
+//! The learner against the real server over loopback: a few iterations of `quad_flat` with 16
+//! envs, a resume that carries on at the right iteration with the checkpoint's state, and the
+//! exported policy evaluated by the server.
+//!
+//! Needs `target/<profile>/unigait-server` (the test command builds the workspace first) or
+//! `$UNIGAIT_SERVER_BIN`.
+
+use std::path::{Path, PathBuf};
+
+use unigait_client::{Client, v1};
+use unigait_learner::checkpoint::Checkpoint;
+use unigait_learner::config::TrainConfig;
+use unigait_learner::learner::Learner;
+use unigait_learner::recipe::{load_recipe, recipes_dir};
+use unigait_learner::run::{Overrides, export_checkpoint, run_recipe};
+use unigait_learner::server::{LocalServer, server_binary};
+
+const ENVS: u32 = 16;
+
+fn csv(path: &Path) -> (Vec<String>, Vec<Vec<String>>) {
+    let text = std::fs::read_to_string(path).unwrap();
+    let mut lines = text.lines();
+    let header = lines.next().unwrap().split(',').map(String::from).collect();
+    let rows = lines
+        .map(|l| l.split(',').map(String::from).collect())
+        .collect();
+    (header, rows)
+}
+
+fn column(header: &[String], rows: &[Vec<String>], name: &str) -> Vec<f64> {
+    let i = header
+        .iter()
+        .position(|c| c == name)
+        .unwrap_or_else(|| panic!("no column {name} in {header:?}"));
+    rows.iter()
+        .map(|r| r[i].parse().unwrap_or(f64::NAN))
+        .collect()
+}
+
+fn fresh_dir(tag: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("unigait-learner-{tag}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    d
+}
+
+#[test]
+fn trains_resumes_and_exports_against_the_real_server() {
+    let bin = server_binary(None);
+    assert!(
+        bin.is_file(),
+        "no server binary at {}: build it (cargo build --release -p unigait-server) or set \
+         UNIGAIT_SERVER_BIN",
+        bin.display()
+    );
+    let server = LocalServer::start(&bin, &["--threads".into(), "1".into()]).unwrap();
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    let dir = fresh_dir("loopback");
+    let recipe = || load_recipe("quad_flat", &recipes_dir()).unwrap();
+    let overrides = |iterations| Overrides {
+        iterations: Some(iterations),
+        num_envs: Some(ENVS),
+        seed: Some(3),
+    };
+
+    // Two iterations.
+    let first = runtime
+        .block_on(run_recipe(recipe(), &overrides(2), &dir, &server.address))
+        .unwrap();
+    assert_eq!(first.iteration, 2);
+    assert_eq!(first.total_env_steps, 2 * 24 * u64::from(ENVS));
+    let stage = dir.join("01_quad");
+    let (header, rows) = csv(&stage.join("progress.csv"));
+    for name in [
+        "iteration",
+        "total_env_steps",
+        "env_steps_per_s",
+        "mean_step_reward",
+        "mean_episode_reward",
+        "mean_episode_length",
+        "step_reward/quad_tracking_lin_vel",
+        "episode_reward/quad_tracking_lin_vel",
+        "learning_rate",
+        "action_std",
+        "estimator_loss",
+        "time_share/update",
+    ] {
+        assert!(header.iter().any(|c| c == name), "{name} in {header:?}");
+    }
+    assert_eq!(column(&header, &rows, "iteration"), [1.0, 2.0]);
+    assert_eq!(column(&header, &rows, "total_env_steps"), [384.0, 768.0]);
+    // Rewards came from the server: a standing start earns something per step.
+    let reward = column(&header, &rows, "mean_step_reward");
+    assert!(
+        reward.iter().all(|r| r.is_finite() && *r != 0.0),
+        "{reward:?}"
+    );
+    let ck2 = Checkpoint::load(&stage.join("model_2.ckpt")).unwrap();
+    assert_eq!(ck2.header.iteration, 2);
+
+    // The resumed learner holds exactly the checkpoint's state: networks, both optimisers,
+    // counters, learning rate, generators (a checkpoint of it has the same header and weights).
+    let cfg = TrainConfig::from_table(toml::from_str(&ck2.header.config_toml).unwrap()).unwrap();
+    assert_eq!(cfg.env.num_envs, ENVS);
+    let mut resumed = Learner::new(cfg, ck2.header.dims, ENVS as usize);
+    resumed.load(&ck2, true).unwrap();
+    let again = resumed.to_checkpoint().unwrap();
+    assert_eq!(again.header.iteration, 2);
+    assert_eq!(again.header.learning_rate, ck2.header.learning_rate);
+    assert_eq!(again.header.action_rng, ck2.header.action_rng);
+    assert_eq!(again.header.update_rng, ck2.header.update_rng);
+    let weights = |ck: &Checkpoint| {
+        let end = ck.header.ppo_optimizer.offset;
+        ck.blobs[..end].to_vec()
+    };
+    assert_eq!(weights(&again), weights(&ck2));
+    assert_eq!(
+        again.header.ppo_optimizer.len, ck2.header.ppo_optimizer.len,
+        "the Adam moments of every parameter came back"
+    );
+
+    // The same command with more iterations carries on at iteration 3.
+    let second = runtime
+        .block_on(run_recipe(recipe(), &overrides(4), &dir, &server.address))
+        .unwrap();
+    assert_eq!(second.iteration, 4);
+    assert_eq!(second.total_env_steps, 4 * 24 * u64::from(ENVS));
+    let (header, rows) = csv(&stage.join("progress.csv"));
+    assert_eq!(column(&header, &rows, "iteration"), [1.0, 2.0, 3.0, 4.0]);
+    let ck4 = Checkpoint::load(&stage.join("model_4.ckpt")).unwrap();
+    assert_eq!(ck4.header.iteration, 4);
+    assert_ne!(weights(&ck4), weights(&ck2), "the resumed run trained");
+    // Another recipe text in the same folder is refused.
+    let mut other = recipe();
+    other.text.push_str("\n# changed\n");
+    let err = runtime
+        .block_on(run_recipe(other, &overrides(4), &dir, &server.address))
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("another recipe text"), "{err}");
+
+    // The exported policy: the run's policy.onnx is the final checkpoint's, and the server
+    // evaluates it.
+    let onnx = std::fs::read(dir.join("policy.onnx")).unwrap();
+    assert_eq!(onnx, export_checkpoint(&ck4).unwrap());
+    let response = runtime
+        .block_on(async {
+            let mut client = Client::connect(&server.address).await?;
+            client
+                .evaluate(v1::EvaluateRequest {
+                    policy_onnx: onnx.into(),
+                    scenario: "tracking_quad".into(),
+                    num_envs: 2,
+                    seed: 5,
+                    ..Default::default()
+                })
+                .await
+        })
+        .unwrap();
+    // M1's scenario ran the policy: its episodes ended or ran out (an untrained one falls).
+    let m = &response.metrics;
+    let rate = m["tracking/quad/termination_rate"];
+    assert!((0.0..=1.0).contains(&rate), "{m:?}");
+    assert!(m["wall_s"] > 0.0, "{m:?}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
