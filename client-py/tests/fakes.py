@@ -258,7 +258,14 @@ class FakeSimulator(pb_grpc.SimulatorServicer):
         metrics = {"policy_bytes": float(len(request.policy_onnx)), "num_envs": request.num_envs}
         return pb.EvaluateResponse(
             metrics=metrics,
-            report_json=json.dumps({"scenario": request.scenario}),
+            report_json=json.dumps(
+                {
+                    "scenario": request.scenario,
+                    "physics_engine": "articulated"
+                    if "articulated" in request.task_overrides_toml
+                    else "rapier",
+                }
+            ),
             recording_rrd=b"RRD" if request.record else b"",
         )
 

@@ -47,10 +47,12 @@ def test_ship_chooses_on_the_validation_seed_and_reports_on_the_evaluation_seed(
     address, servicer = fake_server
     run = tmp_path / "run"
     train = ["train", "--server", address, "--num-envs", "6", "--log-dir", str(run), *SMALL]
-    assert main([*train, "--iterations", "3"]) == 0
+    engine = 'env.task.physics.engine="articulated"'
+    assert main([*train, "--iterations", "3", "--set", engine]) == 0
     ship = ["ship", "--server", address, "--run-dir", str(run), "--recipe", "unified_flat"]
     ship += ["--name", "u", "--out-root", str(tmp_path / "policies"), "--num-envs", "4"]
     servicer.evaluated.clear()
+    servicer.evaluated_overrides.clear()
     select = ["--select-last", "2", "--select-seed", "7", "--select-envs", "12"]
     assert main([*ship, *select, "--eval-seed", "1000"]) == 0
     scenarios = list(milestone("M2").scenarios)
@@ -58,7 +60,10 @@ def test_ship_chooses_on_the_validation_seed_and_reports_on_the_evaluation_seed(
     assert servicer.evaluated == [(s, 7, 12) for s in scenarios] * 2 + [
         (s, 1000, 4) for s in scenarios
     ]
+    # Chosen and judged on the engine it trained on, which the card names.
+    assert set(servicer.evaluated_overrides) == {'physics.engine = "articulated"'}
     card = (tmp_path / "policies" / "u" / "MODEL_CARD.md").read_text()
+    assert "on the `articulated` physics engine" in card
     # The fake server's figures are the same for both: the later checkpoint wins the tie.
     assert "last 2 checkpoints on validation seed 7 (12 envs per scenario)" in card
     assert "2: 0/7 (-7.00), 3: 0/7 (-7.00). Iteration 3 ranked first" in card

@@ -205,6 +205,11 @@ def engine_overrides(task: Mapping[str, Any]) -> str:
     return f"physics.engine = {json.dumps(engine)}" if engine else ""
 
 
+def checkpoint_engine_overrides(checkpoint: Mapping[str, Any]) -> str:
+    """:func:`engine_overrides` of the task a checkpoint was trained on."""
+    return engine_overrides(checkpoint.get("config", {}).get("env", {}).get("task", {}))
+
+
 def same_task(a: dict[str, Any], b: dict[str, Any]) -> bool:
     """Whether two task tables train the same task.
 

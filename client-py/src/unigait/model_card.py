@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from unigait.milestones import Evals, Milestone
+from unigait.recipes import load_recipe
 
 #: Table III's hidden layers (actor and critic; estimator).
 TABLE_III = ([512, 256, 128], [256, 128])
@@ -33,6 +34,7 @@ class CardInputs:
         num_envs: Envs per evaluated scenario.
         ship_command: The ``ship`` command line that reproduces this folder.
         selection: How the checkpoint was chosen, when it was.
+        physics_engine: The engine the evaluations ran on, as their reports name it.
     """
 
     name: str
@@ -47,6 +49,7 @@ class CardInputs:
     num_envs: int
     ship_command: str
     selection: str | None = None
+    physics_engine: str = "rapier"
 
 
 def machine() -> str:
@@ -273,8 +276,9 @@ def model_card(card: CardInputs) -> str:
         f"- shipped from code: git commit `{card.commit}`",
         f"- networks: {_networks(checkpoint)}",
         f"- evaluated on seed {card.eval_seed} (training uses seeds below 100, checkpoint "
-        f"selection 2000 and up), {envs}; every figure here is in "
-        "`eval.json`, the full reports in `reports/`",
+        f"selection 2000 and up), {envs}, on the `{card.physics_engine}` physics engine (the one "
+        "it was trained on); every figure here is in `eval.json`, the full reports in "
+        "`reports/`",
         "",
     ]
     for k, milestone in enumerate(card.milestones):
@@ -298,8 +302,9 @@ def model_card(card: CardInputs) -> str:
     lines += [
         "## Reproduce",
         "",
-        f"From fresh networks, with the recipe `{card.recipe}` (every stage unattended; the same "
-        "command again carries on after an interruption), then this folder:",
+        f"{_starts_from(card.recipe)}, with the recipe `{card.recipe}` (every stage "
+        "unattended; the same command again carries on after an interruption), then this "
+        "folder:",
         "",
         "```sh",
         f"python -m unigait train --recipe {card.recipe} --log-dir runs/{card.recipe}",
@@ -326,3 +331,9 @@ def model_card(card: CardInputs) -> str:
         lines.append("")
     lines += ["## Config", "", "```toml", _config_toml(checkpoint), "```"]
     return "\n".join(lines) + "\n"
+
+
+def _starts_from(recipe: str) -> str:
+    """Where a recipe's first stage starts: fresh networks, or a checkpoint in the repository."""
+    start = load_recipe(recipe).stages[0].start
+    return "From fresh networks" if start == "fresh" else f"From `{start}`"

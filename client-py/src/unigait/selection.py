@@ -19,6 +19,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from unigait.config import checkpoint_engine_overrides
 from unigait.milestones import Milestone
 
 _CHECKPOINT = re.compile(r"model_(\d+)\.pt")
@@ -53,6 +54,8 @@ def select_checkpoint(
     num_envs: int,
 ) -> list[Candidate]:
     """Evaluate the run's ``last`` checkpoints on ``seed``; the candidates, best first."""
+    import torch
+
     from unigait.client import Client
     from unigait.export import export_onnx, load_policy
 
@@ -66,9 +69,16 @@ def select_checkpoint(
             policy, dims = load_policy(path)
             export_onnx(policy, onnx_path, dims["history_length"], dims["obs_dim"])
             onnx = onnx_path.read_bytes()
+            engine = checkpoint_engine_overrides(
+                torch.load(path, map_location="cpu", weights_only=False)
+            )
             evals = {
                 s: client.evaluate(
-                    onnx, s, num_envs=milestone.envs_for(s, num_envs), seed=seed
+                    onnx,
+                    s,
+                    num_envs=milestone.envs_for(s, num_envs),
+                    seed=seed,
+                    task_overrides_toml=engine,
                 ).metrics
                 for s in milestone.scenarios
             }

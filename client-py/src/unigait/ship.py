@@ -17,6 +17,7 @@ import shutil
 from collections.abc import Sequence
 from pathlib import Path
 
+from unigait.config import checkpoint_engine_overrides
 from unigait.milestones import Milestone
 from unigait.model_card import CardInputs, model_card
 from unigait.provenance import git_commit
@@ -156,9 +157,14 @@ def ship(
             for s in m.scenarios:
                 envs.setdefault(s, m.envs_for(s, num_envs))
         evals: dict[str, dict[str, float]] = {}
+        engine = checkpoint_engine_overrides(checkpoint)  # judged on its training engine
+        ran_on: set[str] = set()
         with Client(addresses[0]) as client:
             for scenario, n in envs.items():
-                result = client.evaluate(onnx, scenario, num_envs=n, seed=eval_seed)
+                result = client.evaluate(
+                    onnx, scenario, num_envs=n, seed=eval_seed, task_overrides_toml=engine
+                )
+                ran_on.add(str(json.loads(result.report_json).get("physics_engine", "rapier")))
                 evals[scenario] = dict(sorted(result.metrics.items()))
                 report = built / "reports" / f"{scenario}_seed{eval_seed}.json"
                 report.write_text(result.report_json)
@@ -176,6 +182,7 @@ def ship(
             num_envs=num_envs,
             ship_command=ship_command,
             selection=selection,
+            physics_engine=", ".join(sorted(ran_on)),
         )
         (built / "MODEL_CARD.md").write_text(model_card(card))
         _keep_reports(folder, built)
