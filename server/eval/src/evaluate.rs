@@ -129,13 +129,7 @@ pub fn evaluate_scenario(
     policies.check()?;
     let t0 = Instant::now();
     let n = options.envs(scenario)?;
-    let mut report = empty_report(
-        scenario.name,
-        scenario.description,
-        policies,
-        n,
-        options,
-    );
+    let mut report = empty_report(scenario.name, scenario.description, policies, n, options);
     let pushes = matches!(&scenario.kind, ScenarioKind::Tracking(t) if t.pushes);
     report.notes.push(format!(
         "calm start: default joints, no initial velocity or tilt; {}; the base config's other \

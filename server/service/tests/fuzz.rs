@@ -250,7 +250,7 @@ async fn issue_14_fuzz_every_rpc_bounded() {
                         "env.decimation = 4000",
                         "[[[[",
                     ][rng.random_range(0..5)]
-                        .into(),
+                    .into(),
                 };
                 check("evaluate", tokio::time::timeout(t, c.evaluate(req)).await);
             }

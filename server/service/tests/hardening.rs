@@ -592,7 +592,11 @@ async fn an_evaluation_runs_on_the_engine_its_overrides_name_and_bad_ones_are_th
             Code::InvalidArgument,
             "EvaluateRequest.task_overrides_toml",
         ),
-        ("env.decimation = 100", Code::ResourceExhausted, "env.decimation"),
+        (
+            "env.decimation = 100",
+            Code::ResourceExhausted,
+            "env.decimation",
+        ),
     ] {
         let mut request = evaluate_request(test_policy(), "flat_quad", 1);
         request.task_overrides_toml = overrides.into();
