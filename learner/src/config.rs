@@ -280,6 +280,22 @@ impl TrainConfig {
         }
     }
 
+    /// The task overrides that choose the task's physics engine ("" when it keeps the
+    /// default): an evaluation of a policy trained on one engine runs on that engine (decision
+    /// record 0023; the Python learner's `engine_overrides`).
+    pub fn engine_overrides(&self) -> String {
+        match self
+            .env
+            .task
+            .get("physics")
+            .and_then(|p| p.get("engine"))
+            .and_then(toml::Value::as_str)
+        {
+            Some(engine) => format!("physics.engine = {}", toml::Value::from(engine)),
+            None => String::new(),
+        }
+    }
+
     /// The PPO update's settings.
     pub fn ppo_config(&self) -> PpoConfig {
         let p = &self.ppo;
@@ -361,6 +377,14 @@ mod tests {
             .insert("activation".into(), "tanh".into());
         let err = TrainConfig::from_table(t).unwrap_err().to_string();
         assert!(err.contains("only \"elu\""), "{err}");
+    }
+
+    #[test]
+    fn evaluations_run_on_the_training_engine() {
+        let mut cfg = TrainConfig::default();
+        assert_eq!(cfg.engine_overrides(), "");
+        cfg.env.task = toml::from_str("[physics]\nengine = \"articulated\"\n").unwrap();
+        assert_eq!(cfg.engine_overrides(), "physics.engine = \"articulated\"");
     }
 
     #[test]

@@ -223,13 +223,15 @@ fn build(
 }
 
 /// Evaluate `policy_onnx` on every scenario of `milestone` (`envs` each, unless the milestone
-/// fixes them) on `seed`, on the server `client` talks to.
+/// fixes them) on `seed`, on the server `client` talks to, with the task overrides
+/// `task_overrides_toml` (the training engine's).
 pub async fn evaluate(
     client: &mut Client,
     milestone: &Milestone,
     policy_onnx: &[u8],
     envs: u32,
     seed: u64,
+    task_overrides_toml: &str,
 ) -> Result<Evals> {
     let mut evals = Evals::new();
     for scenario in &milestone.scenarios {
@@ -239,6 +241,7 @@ pub async fn evaluate(
                 scenario: scenario.clone(),
                 num_envs: milestone.envs_for(scenario, envs),
                 seed,
+                task_overrides_toml: task_overrides_toml.to_string(),
                 ..Default::default()
             })
             .await?;

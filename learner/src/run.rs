@@ -349,9 +349,15 @@ async fn train_stage(
             // The stage's stop rule: the current policy on the validation seed, as the
             // Python learner's recipe runner judges it (validation.jsonl has the same rows).
             let onnx = policy_onnx(&learner)?;
-            let evals =
-                milestone::evaluate(client, m, &onnx, rule.validation_envs, rule.validation_seed)
-                    .await?;
+            let evals = milestone::evaluate(
+                client,
+                m,
+                &onnx,
+                rule.validation_envs,
+                rule.validation_seed,
+                &learner.cfg.engine_overrides(),
+            )
+            .await?;
             let met = m.score(&evals);
             let record = json!({
                 "iteration": learner.iteration,
