@@ -92,7 +92,11 @@ fn train(args: TrainArgs) -> Result<()> {
             a
         }
     };
-    let runtime = tokio::runtime::Builder::new_current_thread()
+    // The update runs on this thread inside `block_on`; the connection's task runs on the one
+    // worker, so it answers the server's keepalive pings however long an update takes (on a
+    // current-thread runtime a 80 s update under load lost the connection).
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
         .enable_all()
         .build()?;
     let summary = runtime.block_on(run_recipe(recipe, &overrides, &args.log_dir, &address));
