@@ -45,7 +45,7 @@ def test_train_resume_export_evaluate(fake_server, tmp_path, capsys):
     code = main([*evaluate, *options, "--record", str(rrd)])
     assert code == 0
     assert "policy_bytes" in capsys.readouterr().out
-    assert json.loads(report.read_text()) == {"scenario": "flat_quad"}
+    assert json.loads(report.read_text()) == {"scenario": "flat_quad", "physics_engine": "rapier"}
     assert rrd.read_bytes() == b"RRD"
 
 
