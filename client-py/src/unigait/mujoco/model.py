@@ -94,6 +94,7 @@ class PhysicsOptions:
         fixed_base_height: None: free-floating base. A height (m): the base is welded level
             at (0, 0, height) (the server's ``lock_trunk(LockedAxes::all())``).
         cone: Friction cone, ``"elliptic"`` or ``"pyramidal"``. Elliptic.
+        solver: Constraint solver, ``"newton"`` (MuJoCo's default), ``"cg"`` or ``"pgs"``.
         solref: Contact ``solref`` (time constant s, damping ratio). MuJoCo's default
             (0.02, 1).
         iterations: Solver iterations. 100 (MuJoCo's default).
@@ -122,6 +123,7 @@ class PhysicsOptions:
     friction: float = 1.0
     fixed_base_height: float | None = None
     cone: str = "elliptic"
+    solver: str = "newton"
     solref: tuple[float, float] = (0.02, 1.0)
     iterations: int = 100
     ls_iterations: int = 50
@@ -249,6 +251,11 @@ def build_model(options: PhysicsOptions | None = None, urdf: Path | None = None)
         "elliptic": mujoco.mjtCone.mjCONE_ELLIPTIC,
         "pyramidal": mujoco.mjtCone.mjCONE_PYRAMIDAL,
     }[options.cone]
+    spec.option.solver = {
+        "newton": mujoco.mjtSolver.mjSOL_NEWTON,
+        "cg": mujoco.mjtSolver.mjSOL_CG,
+        "pgs": mujoco.mjtSolver.mjSOL_PGS,
+    }[options.solver]
     spec.option.integrator = {
         "implicitfast": mujoco.mjtIntegrator.mjINT_IMPLICITFAST,
         "euler": mujoco.mjtIntegrator.mjINT_EULER,
