@@ -36,6 +36,7 @@ if [ -f client-py/pyproject.toml ]; then
   echo "== pytest"
   UNIGAIT_SERVER_BIN="$PWD/target/release/unigait-server" \
     UNIGAIT_CROSSCHECK_BIN="$PWD/target/release/unigait-crosscheck" \
+    UNIGAIT_LEARNER_BIN="$PWD/target/release/unigait-learner" \
     "$VENV/bin/pytest" -q client-py/tests tests
   echo "== pytest against a non-editable install (the package carries its data files)"
   # The venv's install is editable (it reads the checkout); a user's wheel carries only what the

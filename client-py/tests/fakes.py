@@ -277,7 +277,14 @@ class FakeSimulator(pb_grpc.SimulatorServicer):
 
 def start_fake_server() -> tuple[grpc.Server, str, FakeSimulator]:
     """Start a :class:`FakeSimulator` on 127.0.0.1 with an OS-picked port."""
-    server = grpc.server(futures.ThreadPoolExecutor(max_workers=4))
+    # The Rust client pings every 30 s, idle or not (as the real server allows); gRPC core's
+    # defaults would answer the second ping with GOAWAY "too many pings".
+    options = [
+        ("grpc.keepalive_permit_without_calls", 1),
+        ("grpc.http2.min_ping_interval_without_data_ms", 1000),
+        ("grpc.http2.max_ping_strikes", 0),
+    ]
+    server = grpc.server(futures.ThreadPoolExecutor(max_workers=4), options=options)
     servicer = FakeSimulator()
     pb_grpc.add_SimulatorServicer_to_server(servicer, server)
     port = server.add_insecure_port("127.0.0.1:0")

@@ -52,8 +52,8 @@ class CardInputs:
     physics_engine: str = "rapier"
 
 
-def machine() -> str:
-    """This machine in one line (cores, CPU model)."""
+def machine(learner: str = "torch CPU") -> str:
+    """This machine in one line (cores, CPU model, what trained on it)."""
     cpu = platform.processor() or platform.machine()
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
@@ -62,7 +62,7 @@ def machine() -> str:
                 break
     except OSError:
         pass
-    return f"{os.cpu_count()} cores, {cpu}, no GPU (torch CPU)"
+    return f"{os.cpu_count()} cores, {cpu}, no GPU ({learner})"
 
 
 def _fmt(value: float | None, digits: int = 3) -> str:
@@ -272,7 +272,7 @@ def model_card(card: CardInputs) -> str:
         f"- iterations: {iterations}; env steps: {steps:,} (both counted from the last start "
         f"from fresh networks or from weights); training wall time: {wall_s / 3600:.2f} h"
         f"{wall_span}",
-        f"- machine: {machine()}",
+        f"- machine: {machine(_learner(provenance))}",
         f"- shipped from code: git commit `{card.commit}`",
         f"- networks: {_networks(checkpoint)}",
         f"- evaluated on seed {card.eval_seed} (training uses seeds below 100, checkpoint "
@@ -307,7 +307,7 @@ def model_card(card: CardInputs) -> str:
         "folder:",
         "",
         "```sh",
-        f"python -m unigait train --recipe {card.recipe} --log-dir runs/{card.recipe}",
+        f"{_train_command(provenance)} --recipe {card.recipe} --log-dir runs/{card.recipe}",
         card.ship_command,
         "```",
         "",
@@ -331,6 +331,20 @@ def model_card(card: CardInputs) -> str:
         lines.append("")
     lines += ["## Config", "", "```toml", _config_toml(checkpoint), "```"]
     return "\n".join(lines) + "\n"
+
+
+def _is_rust(provenance: Mapping[str, Any]) -> bool:
+    """Whether the Rust learner made the checkpoint (it names itself, ``unigait-learner X``)."""
+    return str(provenance.get("learner", "")).startswith("unigait-learner")
+
+
+def _learner(provenance: Mapping[str, Any]) -> str:
+    return "unigait-learner, burn on the CPU" if _is_rust(provenance) else "torch CPU"
+
+
+def _train_command(provenance: Mapping[str, Any]) -> str:
+    """The command that trains like the checkpoint's learner."""
+    return "unigait-learner train" if _is_rust(provenance) else "python -m unigait train"
 
 
 def _starts_from(recipe: str) -> str:

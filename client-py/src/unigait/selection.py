@@ -19,10 +19,11 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from unigait.checkpoints import export_policy, read_checkpoint
 from unigait.config import checkpoint_engine_overrides
 from unigait.milestones import Milestone
 
-_CHECKPOINT = re.compile(r"model_(\d+)\.pt")
+_CHECKPOINT = re.compile(r"model_(\d+)\.(?:pt|ckpt)")
 
 
 @dataclass(frozen=True)
@@ -36,10 +37,13 @@ class Candidate:
 
 
 def recent_checkpoints(run_dir: Path, last: int) -> list[tuple[int, Path]]:
-    """The run's ``last`` numbered checkpoints (``model_<iteration>.pt``), oldest first."""
+    """The run's ``last`` numbered checkpoints, oldest first.
+
+    ``model_<iteration>.pt``, or ``model_<iteration>.ckpt`` in a Rust learner's run.
+    """
     found = [
         (int(m.group(1)), p)
-        for p in run_dir.glob("model_*.pt")
+        for p in run_dir.glob("model_*")
         if (m := _CHECKPOINT.fullmatch(p.name))
     ]
     return sorted(found)[-last:] if last > 0 else []
@@ -54,24 +58,18 @@ def select_checkpoint(
     num_envs: int,
 ) -> list[Candidate]:
     """Evaluate the run's ``last`` checkpoints on ``seed``; the candidates, best first."""
-    import torch
-
     from unigait.client import Client
-    from unigait.export import export_onnx, load_policy
 
     checkpoints = recent_checkpoints(run_dir, last)
     if not checkpoints:
-        raise FileNotFoundError(f"no model_<iteration>.pt in {run_dir}")
+        raise FileNotFoundError(f"no model_<iteration>.pt (or .ckpt) in {run_dir}")
     candidates = []
     with tempfile.TemporaryDirectory() as tmp, Client(address) as client:
         onnx_path = Path(tmp) / "policy.onnx"
         for iteration, path in checkpoints:
-            policy, dims = load_policy(path)
-            export_onnx(policy, onnx_path, dims["history_length"], dims["obs_dim"])
+            export_policy(path, onnx_path)
             onnx = onnx_path.read_bytes()
-            engine = checkpoint_engine_overrides(
-                torch.load(path, map_location="cpu", weights_only=False)
-            )
+            engine = checkpoint_engine_overrides(read_checkpoint(path))
             evals = {
                 s: client.evaluate(
                     onnx,

@@ -1,12 +1,12 @@
 """Ship a trained policy: ``assets/policies/<name>/`` with everything a user needs to trust it.
 
-The folder holds ``policy.onnx`` (the fused estimator + actor the server runs), ``model.pt`` (the
-training checkpoint, to resume or stage from), ``training.png`` and ``progress.csv`` (the curves),
-``eval.json`` (every figure of the milestone scenarios, on a seed training never used),
-``reports/`` (the server's full JSON report of each scenario) and ``MODEL_CARD.md`` (recipe,
-config, commit, env steps, machine, the milestone tables and how to reproduce it). The folder is
-assembled under a temporary name and renamed into place once every evaluation has succeeded, so a
-ship that fails leaves the shipped policy as it was.
+The folder holds ``policy.onnx`` (the fused estimator + actor the server runs), ``model.pt`` or
+``model.ckpt`` (the Python or the Rust learner's training checkpoint, to resume or stage from),
+``training.png`` and ``progress.csv`` (the curves), ``eval.json`` (every figure of the milestone
+scenarios, on a seed training never used), ``reports/`` (the server's full JSON report of each
+scenario) and ``MODEL_CARD.md`` (recipe, config, commit, env steps, machine, the milestone tables
+and how to reproduce it). The folder is assembled under a temporary name and renamed into place
+once every evaluation has succeeded, so a ship that fails leaves the shipped policy as it was.
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ import shutil
 from collections.abc import Sequence
 from pathlib import Path
 
+from unigait.checkpoints import SUFFIXES, export_policy, latest_checkpoint, read_checkpoint
 from unigait.config import checkpoint_engine_overrides
 from unigait.milestones import Milestone
 from unigait.model_card import CardInputs, model_card
@@ -72,7 +73,7 @@ def _keep_reports(old: Path, built: Path) -> None:
     Reports made beside ``ship`` (Table VI, other seeds, sim2sim) describe the checkpoint, not
     the ship: re-shipping it (a new card, say) keeps them; another checkpoint drops them.
     """
-    if not _same_file(old / "model.pt", built / "model.pt"):
+    if not any(_same_file(old / f"model{s}", built / f"model{s}") for s in SUFFIXES):
         return
     for report in sorted((old / "reports").glob("*.json")):
         if not (built / "reports" / report.name).exists():
@@ -115,7 +116,8 @@ def ship(
         addresses: Server(s) to evaluate on (the first is used).
         ship_command: The command line that reproduces this folder (for the card).
         out_root: Where policy folders live.
-        checkpoint_path: A specific checkpoint instead of the run's ``model_latest.pt``.
+        checkpoint_path: A specific checkpoint (``.pt`` or ``.ckpt``) instead of the run's
+            ``model_latest.pt`` (or ``model_latest.ckpt``, a Rust learner's run).
         eval_seed: Evaluation seed (not one training or selection used).
         num_envs: Envs per scenario.
         selection: How ``checkpoint_path`` was chosen (for the model card), if it was.
@@ -124,33 +126,26 @@ def ship(
     Returns:
         The policy folder.
     """
-    import torch
-
     from unigait.client import Client
-    from unigait.export import export_mismatch, export_onnx, load_policy
 
     load_recipe(recipe)  # a card names only recipes that resolve
     if lineage:
         load_recipe(lineage)
     source_dir = run_folder(run_dir)
-    source = checkpoint_path or source_dir / "model_latest.pt"
+    source = checkpoint_path or latest_checkpoint(source_dir)
     folder = out_root / name
     built = out_root / f".{name}.partial"
     shutil.rmtree(built, ignore_errors=True)
     (built / "reports").mkdir(parents=True)
     try:
-        shutil.copyfile(source, built / "model.pt")
-        checkpoint = torch.load(source, map_location="cpu", weights_only=False)
+        shutil.copyfile(source, built / f"model{source.suffix}")
+        checkpoint = read_checkpoint(source)
         rows = _log_until(source_dir, built, int(checkpoint.get("iteration", 0)))
         if not rows:  # no log to cut: the run's picture as it is, if any
             for src in ("training_curves.png", "training.png"):
                 if (source_dir / src).exists():
                     shutil.copyfile(source_dir / src, built / "training.png")
-        policy, dims = load_policy(source)
-        export_onnx(policy, built / "policy.onnx", dims["history_length"], dims["obs_dim"])
-        diff = export_mismatch(policy, built / "policy.onnx")
-        if diff > 1e-5:
-            raise RuntimeError(f"the exported graph differs from torch by {diff:.2e} (relative)")
+        export_policy(source, built / "policy.onnx")
         onnx = (built / "policy.onnx").read_bytes()
         envs: dict[str, int] = {}
         for m in milestones:
