@@ -3,7 +3,7 @@
 use std::borrow::Cow;
 use std::ops::Range;
 
-use tokio::sync::mpsc;
+use tokio::sync::{mpsc, oneshot};
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::metadata::MetadataValue;
 use tonic::transport::{Certificate, Channel, ClientTlsConfig, Endpoint};
@@ -315,10 +315,14 @@ impl Session {
     }
 }
 
+/// The call's outcome once the server has answered it: its response stream or its status.
+type Opening = oneshot::Receiver<Result<Streaming<v1::StepResult>, tonic::Status>>;
+
 /// A bidirectional stream of steps: send actions, receive the step's results, in order.
 pub struct StepStream {
     tx: mpsc::Sender<v1::StepRequest>,
-    rx: Streaming<v1::StepResult>,
+    rx: Option<Streaming<v1::StepResult>>,
+    opening: Option<Opening>,
     session_id: String,
     num_envs: usize,
     first: bool,
@@ -332,14 +336,33 @@ impl StepStream {
     ) -> Result<Self, ClientError> {
         let (tx, requests) = mpsc::channel(2);
         let r = client.request(ReceiverStream::new(requests));
-        let rx = client.inner.step_stream(r).await?.into_inner();
+        let mut inner = client.inner.clone();
+        let (answered, opening) = oneshot::channel();
+        // gRPC core servers (Python's among them) send the response headers with the first
+        // response, which needs the first request: awaiting them before sending one deadlocks.
+        // The call runs on its own task and the first receive collects it.
+        tokio::spawn(async move {
+            let outcome = inner.step_stream(r).await.map(tonic::Response::into_inner);
+            // The stream may have been dropped unused: nobody to tell.
+            let _ = answered.send(outcome);
+        });
         Ok(StepStream {
             tx,
-            rx,
+            rx: None,
+            opening: Some(opening),
             session_id: session_id.into(),
             num_envs,
             first: true,
         })
+    }
+
+    /// The response stream, waiting for the server's answer to the call the first time.
+    async fn responses(&mut self) -> Result<&mut Streaming<v1::StepResult>, ClientError> {
+        if let Some(opening) = self.opening.take() {
+            let outcome = opening.await.map_err(|_| ClientError::StreamClosed)?;
+            self.rx = Some(outcome?);
+        }
+        self.rx.as_mut().ok_or(ClientError::StreamClosed)
     }
 
     /// Send one batch of actions ([num_envs, 12]) and wait for its results.
@@ -364,15 +387,19 @@ impl StepStream {
             reward_terms,
             draw_envs: Vec::new(),
         };
-        self.tx
-            .send(req)
-            .await
-            .map_err(|_| ClientError::StreamClosed)
+        if self.tx.send(req).await.is_err() {
+            // The call ended before taking the request: its status says why.
+            if self.rx.is_none() {
+                self.responses().await?;
+            }
+            return Err(ClientError::StreamClosed);
+        }
+        Ok(())
     }
 
     /// Receive the results of the oldest unanswered `send`.
     pub async fn receive(&mut self) -> Result<Step, ClientError> {
-        match self.rx.message().await? {
+        match self.responses().await?.message().await? {
             Some(result) => Ok(Step(result)),
             None => Err(ClientError::StreamClosed),
         }
