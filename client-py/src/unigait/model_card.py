@@ -259,7 +259,8 @@ def model_card(card: CardInputs) -> str:
     provenance = checkpoint.get("provenance", {})
     made = (
         f"recipe `{provenance['recipe']}`, stage {provenance.get('stage')} "
-        f"({provenance.get('stage_name')}), code `{provenance.get('git_commit')}`"
+        f"({provenance.get('stage_name')})"
+        + (f", code `{provenance['git_commit']}`" if provenance.get("git_commit") else "")
         if provenance.get("recipe")
         else f"recipe `{card.lineage}` (the stages as they ran)"
         if card.lineage
