@@ -313,6 +313,8 @@ impl TrainConfig {
             adaptive: p.schedule == "adaptive",
             desired_kl: p.desired_kl,
             normalize_advantage: p.normalize_advantage,
+            // torch's intra-op threads in the Python learner; here, the mini-batch's shares.
+            update_threads: usize::try_from(self.runner.update_threads.max(1)).unwrap_or(1),
         }
     }
 
