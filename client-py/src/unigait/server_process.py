@@ -5,9 +5,7 @@ from __future__ import annotations
 import os
 import re
 import shutil
-import signal
 import subprocess
-import sys
 import threading
 import time
 from collections import deque
@@ -31,18 +29,6 @@ def default_server_bin() -> Path:
     if not in_repo.is_file() and on_path:
         return Path(on_path)
     return in_repo
-
-
-def _terminate_with_parent() -> None:
-    """In the child before exec (Linux): SIGTERM when the process that started it dies.
-
-    A learner killed without a chance to clean up (SIGKILL, OOM, a SIGTERM with no handler)
-    would otherwise leave its server running with nobody to talk to.
-    """
-    import ctypes
-
-    pr_set_pdeathsig = 1
-    ctypes.CDLL(None, use_errno=True).prctl(pr_set_pdeathsig, signal.SIGTERM)
 
 
 class LocalServer:
@@ -79,14 +65,19 @@ class LocalServer:
         """
         if not self.binary.is_file():
             raise FileNotFoundError(f"unigait server binary not found: {self.binary}")
-        cmd = [str(self.binary), "serve", "--addr", "127.0.0.1:0", *self.extra_args]
+        # The server ends when its stdin does: this process holds the pipe's other end, so a
+        # learner killed without cleaning up (SIGKILL, OOM) takes its server with it. No code
+        # runs in the child before exec (a preexec_fn there could deadlock on a lock held by
+        # one of this process's other threads at the fork, gRPC's among them).
+        cmd = [str(self.binary), "serve", "--addr", "127.0.0.1:0", "--exit-on-stdin-eof"]
+        cmd += self.extra_args
         self._proc = subprocess.Popen(
             cmd,
+            stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
             text=True,
             bufsize=1,
-            preexec_fn=_terminate_with_parent if sys.platform == "linux" else None,
         )
         found = threading.Event()
 

@@ -90,6 +90,11 @@ struct ServeArgs {
     /// Seconds a shutdown waits for calls in flight.
     #[arg(long, default_value_t = 10)]
     drain_timeout: u64,
+    /// Shut down when stdin reaches its end: a parent that holds the other end of a pipe
+    /// takes its server with it however it dies (SIGKILL too), with no code run in the
+    /// child between fork and exec.
+    #[arg(long)]
+    exit_on_stdin_eof: bool,
     /// Connections open at once; beyond it new ones wait in the listen backlog.
     #[arg(long, default_value_t = TransportLimits::default().max_connections)]
     max_connections: usize,
@@ -182,8 +187,31 @@ async fn run_serve(args: ServeArgs) -> Result<()> {
     // Scripts and tests wait for this line.
     println!("listening on {local}");
     tracing::info!(%local, threads = options.threads, "serving");
-    serve(listener, options, shutdown_signal()).await?;
+    let exit_on_eof = args.exit_on_stdin_eof;
+    let shutdown = async move {
+        tokio::select! {
+            () = shutdown_signal() => {},
+            () = stdin_closed(), if exit_on_eof => {
+                tracing::info!("stdin closed: the process that started the server is gone; shutting down");
+            }
+        }
+    };
+    serve(listener, options, shutdown).await?;
     Ok(())
+}
+
+/// Resolves when stdin reaches its end (or cannot be read). A plain thread reads it: tokio's
+/// stdin is a feature the workspace does not build.
+async fn stdin_closed() {
+    let (closed, rx) = tokio::sync::oneshot::channel::<()>();
+    std::thread::spawn(move || {
+        use std::io::Read;
+        let mut stdin = std::io::stdin().lock();
+        let mut buf = [0u8; 256];
+        while matches!(stdin.read(&mut buf), Ok(n) if n > 0) {}
+        let _ = closed.send(());
+    });
+    let _ = rx.await;
 }
 
 fn main() -> Result<()> {
