@@ -18,32 +18,40 @@ from unigait.server_process import LocalServer
 REPO = Path(__file__).resolve().parents[1]
 
 
-def _server_bin() -> Path:
-    env = os.environ.get("UNIGAIT_SERVER_BIN")
-    return Path(env) if env else REPO / "target" / "release" / "unigait-server"
+def _release_binary(env_var: str, name: str, what: str, build: str) -> Path:
+    """``$env_var``, else ``target/release/<name>``; the test skips, saying so, when missing."""
+    env = os.environ.get(env_var)
+    path = Path(env) if env else REPO / "target" / "release" / name
+    if not path.is_file():
+        pytest.skip(f"{what} not found at {path}: build it with `{build}` or set {env_var}")
+    return path
 
 
 @pytest.fixture(scope="session")
 def server_bin() -> Path:
-    path = _server_bin()
-    if not path.is_file():
-        pytest.skip(
-            f"unigait server binary not found at {path}: build it with "
-            "`cargo build --release` or set UNIGAIT_SERVER_BIN"
-        )
-    return path
+    return _release_binary(
+        "UNIGAIT_SERVER_BIN", "unigait-server", "unigait server binary", "cargo build --release"
+    )
 
 
 @pytest.fixture(scope="session")
 def crosscheck_bin() -> Path:
-    env = os.environ.get("UNIGAIT_CROSSCHECK_BIN")
-    path = Path(env) if env else REPO / "target" / "release" / "unigait-crosscheck"
-    if not path.is_file():
-        pytest.skip(
-            f"cross-check driver not found at {path}: build it with "
-            "`cargo build --release -p unigait-crosscheck` or set UNIGAIT_CROSSCHECK_BIN"
-        )
-    return path
+    return _release_binary(
+        "UNIGAIT_CROSSCHECK_BIN",
+        "unigait-crosscheck",
+        "cross-check driver",
+        "cargo build --release -p unigait-crosscheck",
+    )
+
+
+@pytest.fixture(scope="session")
+def learner_bin() -> Path:
+    return _release_binary(
+        "UNIGAIT_LEARNER_BIN",
+        "unigait-learner",
+        "unigait-learner",
+        "cargo build --release --workspace",
+    )
 
 
 @pytest.fixture(scope="session")

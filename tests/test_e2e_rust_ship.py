@@ -6,28 +6,11 @@ the real server evaluate the policy, and writes a card that says which learner r
 from __future__ import annotations
 
 import json
-import os
 import subprocess
-from pathlib import Path
 
 import pytest
 from unigait.checkpoints import CheckpointError, read_checkpoint
 from unigait.cli import main
-
-from conftest import REPO
-
-
-@pytest.fixture(scope="module")
-def learner_bin() -> Path:
-    env = os.environ.get("UNIGAIT_LEARNER_BIN")
-    path = Path(env) if env else REPO / "target" / "release" / "unigait-learner"
-    if not path.is_file():
-        pytest.skip(
-            f"unigait-learner not found at {path}: build it with "
-            "`cargo build --release --workspace` or set UNIGAIT_LEARNER_BIN"
-        )
-    return path
-
 
 RECIPE = """
 description = "two iterations of quad_flat, a checkpoint each"
