@@ -98,7 +98,7 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     assert settle.stop.milestone == "M2" and settle.stop.validation_seed == 2000
     assert list(settle.config.policy.actor_hidden_dims) == [256, 128, 64]
     # The terrain recipe inherits the flat recipe's last stage and says what it changes.
-    terrain, explore, stairs = load_recipe("unified_terrain").stages
+    terrain, explore, stairs, clearance = load_recipe("unified_terrain").stages
     assert terrain.config.policy == settle.config.policy
     assert (
         terrain.config.env.task["rewards"]["weights"]
@@ -114,6 +114,11 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     assert stairs.config.ppo.entropy_coef == 0.0025 and stairs.carry == "all"
     weights = stairs.config.env.task["rewards"]["weights"]
     assert weights == {**terrain.config.env.task["rewards"]["weights"], "quad_foot_clearance": 3.0}
+    # The fourth keeps those and makes the clearance kernel four times steeper.
+    assert clearance.config.env.task["rewards"]["weights"] == weights
+    assert clearance.config.env.task["rewards"]["foot_clearance_sharpness"] == 400.0
+    assert "foot_clearance_sharpness" not in stairs.config.env.task["rewards"]
+    assert clearance.config.ppo == stairs.config.ppo and clearance.carry == "all"
     # --set applies on top of every stage.
     small = load_recipe("unified_flat", ["env.num_envs=8"])
     assert [s.config.env.num_envs for s in small.stages] == [8, 8, 8]

@@ -282,6 +282,9 @@ pub struct RewardParams {
     pub foot_clearance_target: f32,
     /// Radius of the terrain sampling around each foot (m). Default 0.02.
     pub foot_clearance_radius: f32,
+    /// k of the foot clearance reward exp(-k error). Default 100 (Eq. 4 and 6); a steeper
+    /// kernel makes a low swing cost more (decision record 0025).
+    pub foot_clearance_sharpness: f32,
     /// Sideways reach per radian of hip abduction (m/rad) at which `biped_sideways_reach` pays
     /// in full. Default 0.1: a foot about 8 cm ahead of or behind its hip (0.30 on four legs at
     /// the default pose).
@@ -357,6 +360,7 @@ impl Default for RewardParams {
             upright_pitch: 1.4,
             foot_clearance_target: 0.08,
             foot_clearance_radius: 0.02,
+            foot_clearance_sharpness: 100.0,
             sideways_reach_target: 0.1,
             soft_joint_limit: 0.9,
             contact_threshold: 1.0,

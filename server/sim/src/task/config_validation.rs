@@ -183,6 +183,12 @@ impl TaskConfig {
             0.5,
         )?;
         check(
+            "rewards.foot_clearance_sharpness",
+            w.foot_clearance_sharpness,
+            1.0,
+            1.0e5,
+        )?;
+        check(
             "rewards.sideways_reach_target",
             w.sideways_reach_target,
             1e-3,

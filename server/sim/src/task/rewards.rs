@@ -216,9 +216,9 @@ pub fn foot_clearance_error(
         .sum()
 }
 
-/// exp(-100 error).
-pub fn reward_foot_clearance(error: f32) -> f32 {
-    (-100.0 * error).exp()
+/// exp(-sharpness error): the paper's sharpness is 100 (Eq. 4 and 6).
+pub fn reward_foot_clearance(error: f32, sharpness: f32) -> f32 {
+    (-sharpness * error).exp()
 }
 
 /// exp(-2 |phi*_xy - phi_xy|^2) with (roll proxy, pitch).
@@ -325,12 +325,15 @@ pub fn raw_terms(
                 g.force_scale,
                 g.speed_scale,
             )),
-            RewardTerm::QuadFootClearance => reward_foot_clearance(foot_clearance_error(
-                &x.foot_clearance_height,
-                &x.foot_speed_xy,
-                r.foot_clearance_target,
-                &all_feet,
-            )),
+            RewardTerm::QuadFootClearance => reward_foot_clearance(
+                foot_clearance_error(
+                    &x.foot_clearance_height,
+                    &x.foot_speed_xy,
+                    r.foot_clearance_target,
+                    &all_feet,
+                ),
+                r.foot_clearance_sharpness,
+            ),
             RewardTerm::BipedBaseHeight => reward_base_height(r.base_height_biped, x.base_height),
             RewardTerm::BipedBaseAngle => {
                 reward_biped_base_angle(r.biped_angle_target, x.roll_proxy, x.pitch)
@@ -343,12 +346,15 @@ pub fn raw_terms(
                 g.force_scale,
                 g.speed_scale,
             )),
-            RewardTerm::BipedFootClearance => reward_foot_clearance(foot_clearance_error(
-                &x.foot_clearance_height,
-                &x.foot_speed_xy,
-                r.foot_clearance_target,
-                &k.stance_feet,
-            )),
+            RewardTerm::BipedFootClearance => reward_foot_clearance(
+                foot_clearance_error(
+                    &x.foot_clearance_height,
+                    &x.foot_speed_xy,
+                    r.foot_clearance_target,
+                    &k.stance_feet,
+                ),
+                r.foot_clearance_sharpness,
+            ),
             RewardTerm::BipedRearLegs => {
                 cost_biped_rear_legs(&x.q, &k.raised_left, &k.raised_right)
             }

@@ -146,7 +146,13 @@ fn gait_and_clearance() {
     let h = [0.08, 0.0, 0.5, 0.5];
     let v = [1.0, 2.0, 0.0, 0.0];
     close(foot_clearance_error(&h, &v, 0.08, &[0, 1, 2, 3]), 0.0128);
-    close(reward_foot_clearance(0.0128), (-1.28f32).exp());
+    close(reward_foot_clearance(0.0128, 100.0), (-1.28f32).exp());
+    // A front foot 4 cm short of the target at 0.8 m/s: 0.04^2 * 0.8 = 0.00128; the paper's
+    // kernel keeps 88% of the term, a kernel of 400 keeps 60%.
+    let short = foot_clearance_error(&[0.04, 0.08, 0.08, 0.08], &[0.8, 0.0, 0.0, 0.0], 0.08, &[0]);
+    close(short, 0.00128);
+    close(reward_foot_clearance(short, 100.0), 0.879_853);
+    close(reward_foot_clearance(short, 400.0), 0.599_296);
 }
 
 #[test]
