@@ -88,6 +88,10 @@ def test_learner_improves_quad_velocity_tracking(server, tmp_path):
     try:
         runner = OnPolicyRunner(env, cfg, tmp_path)
         history = runner.learn(12)
+        # The checkpoints record the engine the session reported (decision record 0026).
+        assert env.spec.physics_engine in ("rapier", "articulated")
+        saved = torch.load(tmp_path / "model_latest.pt", weights_only=False)
+        assert saved["physics_engine"] == env.spec.physics_engine
     finally:
         env.close()
     track = [h["step_reward/quad_tracking_lin_vel"] for h in history]

@@ -64,7 +64,7 @@ def test_a_run_draws_the_chosen_envs_as_the_servers_recordings_draw_robots(serve
 
     # The shapes are the server's recordings' own, entity for entity: compare with a recording
     # the same server makes of an evaluation.
-    policy, dims = load_policy(run / "model_2.pt")
+    policy, dims, _ = load_policy(run / "model_2.pt")
     with tempfile.TemporaryDirectory() as tmp:
         onnx = Path(tmp) / "p.onnx"
         export_onnx(policy, onnx, dims["history_length"], dims["obs_dim"])

@@ -11,12 +11,14 @@ import torch
 from unigait.config import (
     TrainConfig,
     apply,
+    checkpoint_engine,
+    checkpoint_engine_overrides,
     load_config,
     parse_override,
     resume_upright_curriculum,
     with_task_setting,
 )
-from unigait.export import export_mismatch, export_onnx, load_policy
+from unigait.export import export_mismatch, export_onnx, load_policy, with_metadata
 from unigait.modules import EstimatorActorPolicy
 from unigait.runners import build_networks
 
@@ -92,12 +94,17 @@ def test_onnx_export_matches_torch(tmp_path):
         },
         ckpt,
     )
-    policy, dims = load_policy(ckpt)
+    policy, dims, engine = load_policy(ckpt)
     assert isinstance(policy, EstimatorActorPolicy) and dims["history_length"] == 3
+    assert engine == "rapier"  # a checkpoint from before engines were recorded, its task silent
     out = tmp_path / "policy.onnx"
-    export_onnx(policy, out)
+    export_onnx(policy, out, physics_engine="articulated")
     model = onnx.load(out)
     onnx.checker.check_model(model)
+    # The engine it trained on, as the onnx package reads the appended metadata entry.
+    assert {p.key: p.value for p in model.metadata_props} == {
+        "unigait.physics_engine": "articulated"
+    }
     (inp,) = model.graph.input
     (outp,) = model.graph.output
     assert inp.name == "obs_history" and outp.name == "actions"
@@ -134,3 +141,27 @@ def test_the_task_is_a_table_set_by_key_and_an_old_checkpoints_string_still_read
     assert apply(TrainConfig(), old).env.task == {"modes": {"biped_probability": 0.0}}
     with pytest.raises(TypeError, match=r"env\.task must be a table"):
         apply(TrainConfig(), {"env": {"task": 3}})
+
+
+def test_a_checkpoint_names_the_engine_it_trained_on_or_its_task_or_rapier():
+    task = {"physics": {"engine": "articulated"}}
+    assert checkpoint_engine({"physics_engine": "articulated", "config": {}}) == "articulated"
+    assert checkpoint_engine({"config": {"env": {"task": task}}}) == "articulated"
+    # Recorded wins over the task's table; nothing said means a checkpoint from rapier days.
+    recorded = {"physics_engine": "rapier", "config": {"env": {"task": task}}}
+    assert checkpoint_engine(recorded) == "rapier"
+    assert checkpoint_engine({"physics_engine": "", "config": {"env": {"task": {}}}}) == "rapier"
+    assert checkpoint_engine_overrides({}) == 'physics.engine = "rapier"'
+
+
+def test_metadata_is_appended_as_protobuf_field_14(tmp_path):
+    """Long values need multi-byte varints; the onnx package reads every entry back in order."""
+    model = onnx.helper.make_model(onnx.helper.make_graph([], "g", [], []))
+    raw = model.SerializeToString()
+    stamped = with_metadata(with_metadata(raw, "a", "x" * 300), "unigait.physics_engine", "rapier")
+    assert stamped.startswith(raw)
+    back = onnx.load_from_string(stamped)
+    assert [(p.key, len(p.value)) for p in back.metadata_props] == [
+        ("a", 300),
+        ("unigait.physics_engine", 6),
+    ]

@@ -60,6 +60,10 @@ pub struct Header {
     pub upright_pitch: Option<f32>,
     /// Each env's terrain level at the last rollout's end.
     pub terrain_levels: Vec<u32>,
+    /// The physics engine the session trained on, as its spec named it ("" in checkpoints
+    /// written before it was recorded: see [`Header::trained_engine`]).
+    #[serde(default)]
+    pub physics_engine: String,
     /// The actor-critic's parameters, in visiting order.
     pub actor_critic: Vec<TensorEntry>,
     /// The estimator's parameters, in visiting order.
@@ -68,6 +72,27 @@ pub struct Header {
     pub ppo_optimizer: Blob,
     /// The estimator's Adam record.
     pub estimator_optimizer: Blob,
+}
+
+impl Header {
+    /// The physics engine these networks trained on: the one recorded, else the task's choice,
+    /// else rapier (the default before it was recorded).
+    pub fn trained_engine(&self) -> String {
+        if !self.physics_engine.is_empty() {
+            return self.physics_engine.clone();
+        }
+        let task_choice = toml::from_str::<toml::Table>(&self.config_toml)
+            .ok()
+            .and_then(|t| {
+                t.get("env")?
+                    .get("task")?
+                    .get("physics")?
+                    .get("engine")?
+                    .as_str()
+                    .map(str::to_string)
+            });
+        task_choice.unwrap_or_else(|| crate::config::ENGINE_BEFORE_RECORDING.into())
+    }
 }
 
 /// A checkpoint in memory.

@@ -280,20 +280,13 @@ impl TrainConfig {
         }
     }
 
-    /// The task overrides that choose the task's physics engine ("" when it keeps the
-    /// default): an evaluation of a policy trained on one engine runs on that engine (decision
-    /// record 0023; the Python learner's `engine_overrides`).
-    pub fn engine_overrides(&self) -> String {
-        match self
-            .env
+    /// The physics engine the task chooses (None: the server's default).
+    pub fn task_engine(&self) -> Option<&str> {
+        self.env
             .task
             .get("physics")
             .and_then(|p| p.get("engine"))
             .and_then(toml::Value::as_str)
-        {
-            Some(engine) => format!("physics.engine = {}", toml::Value::from(engine)),
-            None => String::new(),
-        }
     }
 
     /// The PPO update's settings.
@@ -346,6 +339,16 @@ pub fn merged(mut base: toml::Table, update: &toml::Table) -> toml::Table {
     base
 }
 
+/// The engine of a checkpoint or policy that does not say: every one written before the
+/// learners recorded the engine trained on rapier unless its task chose (decision record 0026).
+pub const ENGINE_BEFORE_RECORDING: &str = "rapier";
+
+/// The task overrides that evaluate a policy on `engine`, the one it trained on (decision
+/// records 0023 and 0026).
+pub fn engine_overrides(engine: &str) -> String {
+    format!("physics.engine = {}", toml::Value::from(engine))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -382,11 +385,15 @@ mod tests {
     }
 
     #[test]
-    fn evaluations_run_on_the_training_engine() {
+    fn the_task_names_its_engine_or_leaves_it_to_the_server() {
         let mut cfg = TrainConfig::default();
-        assert_eq!(cfg.engine_overrides(), "");
+        assert_eq!(cfg.task_engine(), None);
         cfg.env.task = toml::from_str("[physics]\nengine = \"articulated\"\n").unwrap();
-        assert_eq!(cfg.engine_overrides(), "physics.engine = \"articulated\"");
+        assert_eq!(cfg.task_engine(), Some("articulated"));
+        assert_eq!(
+            engine_overrides("articulated"),
+            "physics.engine = \"articulated\""
+        );
     }
 
     #[test]

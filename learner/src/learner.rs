@@ -56,6 +56,8 @@ pub struct Envs {
     pub reward_terms: Vec<String>,
     /// The longest episode in seconds (per-term episode rewards are per second of it).
     pub episode_length_s: f64,
+    /// The physics engine the session steps in ("" from a server that does not say).
+    pub physics_engine: String,
     last: StepData,
     history: ObservationHistory,
     stats: EpisodeStats,
@@ -75,7 +77,9 @@ impl Envs {
         let last = StepData::from_step(&session.initial, &dims, n)?;
         let stream = session.stream().await?;
         let reward_terms = spec.0.reward_terms.clone();
+        let physics_engine = spec.0.physics_engine.clone();
         Ok(Self {
+            physics_engine,
             history: ObservationHistory::new(&last.obs, history_length, dims.obs),
             stats: EpisodeStats::new(n, reward_terms.len()),
             episode_length_s: f64::from(spec.0.max_episode_steps) * f64::from(spec.0.policy_dt),
@@ -141,6 +145,9 @@ pub struct Learner {
     pub terrain_levels: Vec<u32>,
     /// Where these networks come from, saved with every checkpoint.
     pub provenance: serde_json::Value,
+    /// The physics engine the envs step in (the session's spec says), saved with every
+    /// checkpoint and stamped into exported policies (decision record 0026).
+    pub physics_engine: String,
 }
 
 fn infer(mlp: &Mlp, x: Vec<f32>, rows: usize, cols: usize, device: &Device) -> Result<Vec<f32>> {
@@ -196,6 +203,10 @@ impl Learner {
             upright_pitch: None,
             terrain_levels: Vec::new(),
             provenance: serde_json::Value::Null,
+            physics_engine: cfg
+                .task_engine()
+                .unwrap_or(crate::config::ENGINE_BEFORE_RECORDING)
+                .to_string(),
             cfg,
             dims,
             num_envs,
@@ -500,6 +511,7 @@ impl Learner {
                 provenance: self.provenance.clone(),
                 upright_pitch: self.upright_pitch,
                 terrain_levels: self.terrain_levels.clone(),
+                physics_engine: self.physics_engine.clone(),
                 actor_critic,
                 estimator,
                 ppo_optimizer,

@@ -40,7 +40,25 @@ pub struct ModelProto {
     /// Opsets.
     #[prost(message, repeated, tag = "8")]
     pub opset_import: Vec<OperatorSetIdProto>,
+    /// Named strings: the physics engine the policy trained on.
+    #[prost(message, repeated, tag = "14")]
+    pub metadata_props: Vec<StringStringEntryProto>,
 }
+
+/// onnx.proto `StringStringEntryProto`.
+#[derive(Clone, PartialEq, Message)]
+pub struct StringStringEntryProto {
+    /// Key.
+    #[prost(string, tag = "1")]
+    pub key: String,
+    /// Value.
+    #[prost(string, tag = "2")]
+    pub value: String,
+}
+
+/// The metadata key of the physics engine a policy trained on, which the server evaluates it
+/// on unless told otherwise (decision record 0026; the server's `PHYSICS_ENGINE_KEY`).
+pub const PHYSICS_ENGINE_KEY: &str = "unigait.physics_engine";
 
 /// onnx.proto `OperatorSetIdProto`.
 #[derive(Clone, PartialEq, Message)]
@@ -282,13 +300,14 @@ fn add_mlp(g: &mut GraphProto, mlp: &Mlp, prefix: &str, input: &str, output: &st
 }
 
 /// The fused estimator + actor as ONNX bytes: `obs_history` [batch, `history`, `obs_dim`] ->
-/// `actions` [batch, `num_actions`].
+/// `actions` [batch, `num_actions`], stamped with the `physics_engine` it trained on.
 pub fn export_policy(
     estimator: &Mlp,
     actor: &Mlp,
     history: usize,
     obs_dim: usize,
     num_actions: usize,
+    physics_engine: &str,
 ) -> Result<Vec<u8>> {
     let mut g = GraphProto {
         name: "unigait_policy".into(),
@@ -332,6 +351,10 @@ pub fn export_policy(
         opset_import: vec![OperatorSetIdProto {
             domain: String::new(),
             version: OPSET,
+        }],
+        metadata_props: vec![StringStringEntryProto {
+            key: PHYSICS_ENGINE_KEY.into(),
+            value: physics_engine.into(),
         }],
     };
     Ok(model.encode_to_vec())

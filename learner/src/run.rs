@@ -16,7 +16,7 @@ use serde_json::json;
 use unigait_client::Client;
 
 use crate::checkpoint::Checkpoint;
-use crate::config::TrainConfig;
+use crate::config::{TrainConfig, engine_overrides};
 use crate::learner::{Envs, Learner, Scalars, session_config};
 use crate::log::ProgressLog;
 use crate::milestone::{self, load_milestone, milestones_file};
@@ -129,6 +129,7 @@ pub fn export_checkpoint(ck: &Checkpoint) -> Result<Vec<u8>> {
     let dims = ck.header.dims;
     let mut learner = Learner::new(cfg, dims, 1);
     learner.load(ck, false)?;
+    learner.physics_engine = ck.header.trained_engine();
     policy_onnx(&learner)
 }
 
@@ -141,6 +142,7 @@ pub fn policy_onnx(learner: &Learner) -> Result<Vec<u8>> {
         d.history_length,
         d.obs,
         d.actions,
+        &learner.physics_engine,
     )
 }
 
@@ -271,6 +273,9 @@ async fn train_stage(
 ) -> Result<(PathBuf, u64)> {
     let save_interval = cfg.runner.save_interval;
     let mut learner = Learner::new(cfg, envs.dims, envs.num_envs);
+    if !envs.physics_engine.is_empty() {
+        learner.physics_engine = envs.physics_engine.clone();
+    }
     let mut log = ProgressLog::open(stage_dir)?;
     let start_iteration = if resuming {
         let ck = source.as_ref().expect("a resumed stage has its checkpoint");
@@ -355,7 +360,7 @@ async fn train_stage(
                 &onnx,
                 rule.validation_envs,
                 rule.validation_seed,
-                &learner.cfg.engine_overrides(),
+                &engine_overrides(&learner.physics_engine),
             )
             .await?;
             let met = m.score(&evals);

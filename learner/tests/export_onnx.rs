@@ -85,7 +85,11 @@ fn the_export_computes_the_hand_computed_actions() {
             layer(vec![3.0], vec![0.1], 1, 1, &dev),
         ],
     };
-    let bytes = export_policy(&estimator, &actor, 1, 2, 1).unwrap();
+    let bytes = export_policy(&estimator, &actor, 1, 2, 1, "articulated").unwrap();
+    assert_eq!(
+        unigait_policy::trained_engine(&bytes).unwrap().as_deref(),
+        Some("articulated")
+    );
     let spec = PolicySpec {
         history: 1,
         obs_dim: 2,
@@ -107,5 +111,31 @@ fn a_checkpoint_exports_the_same_policy() {
     assert_eq!(
         export_checkpoint(&ck).unwrap(),
         policy_onnx(&learner).unwrap()
+    );
+}
+
+/// A checkpoint names the engine it trained on; one from before that was recorded, its task's
+/// choice, else rapier (decision record 0026); the export is stamped with it.
+#[test]
+fn a_checkpoint_names_its_engine_or_its_tasks_or_rapier() {
+    let plain = Learner::new(TrainConfig::default(), DIMS, 1);
+    let mut old = serde_json::to_value(&plain.to_checkpoint().unwrap().header).unwrap();
+    old.as_object_mut().unwrap().remove("physics_engine");
+    let old: unigait_learner::checkpoint::Header = serde_json::from_value(old).unwrap();
+    assert_eq!(old.physics_engine, "");
+    assert_eq!(old.trained_engine(), "rapier");
+
+    let mut cfg = TrainConfig::default();
+    cfg.env.task = toml::from_str("[physics]\nengine = \"articulated\"\n").unwrap();
+    let mut ck = Learner::new(cfg, DIMS, 1).to_checkpoint().unwrap();
+    assert_eq!(ck.header.physics_engine, "articulated");
+    ck.header.physics_engine = String::new();
+    assert_eq!(ck.header.trained_engine(), "articulated");
+    ck.header.physics_engine = "rapier".into();
+    assert_eq!(ck.header.trained_engine(), "rapier");
+    let onnx = export_checkpoint(&ck).unwrap();
+    assert_eq!(
+        unigait_policy::trained_engine(&onnx).unwrap().as_deref(),
+        Some("rapier")
     );
 }

@@ -99,6 +99,14 @@ fn trains_resumes_and_exports_against_the_real_server() {
     );
     let ck2 = Checkpoint::load(&stage.join("model_2.ckpt")).unwrap();
     assert_eq!(ck2.header.iteration, 2);
+    // The engine the session reported is recorded, and named in the stage's policy.
+    let engine = ck2.header.physics_engine.clone();
+    assert!(
+        ["rapier", "articulated"].contains(&engine.as_str()),
+        "{engine:?}"
+    );
+    let onnx = std::fs::read(stage.join("policy.onnx")).unwrap();
+    assert_eq!(unigait_policy::trained_engine(&onnx).unwrap(), Some(engine));
 
     // The resumed learner holds exactly the checkpoint's state: networks, both optimisers,
     // counters, learning rate, generators (a checkpoint of it has the same header and weights).

@@ -44,7 +44,8 @@ def read_checkpoint(path: Path) -> dict[str, Any]:
 
     For a ``.pt``, the whole torch checkpoint. For a ``.ckpt``, the header mapped onto those
     keys: ``iteration``, ``total_env_steps``, ``config`` (the config's tables), ``provenance``
-    (with ``learner``), ``upright_pitch``, ``terrain_levels`` and ``dims``.
+    (with ``learner``), ``upright_pitch``, ``terrain_levels``, ``dims`` and ``physics_engine``
+    ("" where it recorded none).
     """
     if path.suffix != ".ckpt":
         import torch
@@ -62,6 +63,7 @@ def read_checkpoint(path: Path) -> dict[str, Any]:
             "upright_pitch": header.get("upright_pitch"),
             "terrain_levels": list(header.get("terrain_levels") or []),
             "dims": dict(header.get("dims") or {}),
+            "physics_engine": str(header.get("physics_engine") or ""),
         }
     except (KeyError, TypeError, ValueError, tomllib.TOMLDecodeError) as err:
         raise CheckpointError(
@@ -128,8 +130,8 @@ def export_policy(path: Path, out: Path) -> None:
         return
     from unigait.export import export_mismatch, export_onnx, load_policy
 
-    policy, dims = load_policy(path)
-    export_onnx(policy, out, dims["history_length"], dims["obs_dim"])
+    policy, dims, engine = load_policy(path)
+    export_onnx(policy, out, dims["history_length"], dims["obs_dim"], physics_engine=engine)
     diff = export_mismatch(policy, out)
     if diff > 1e-5:
         raise CheckpointError(f"{path}: the exported graph differs from torch by {diff:.2e}")

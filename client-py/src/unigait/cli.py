@@ -319,11 +319,12 @@ def _train(args: argparse.Namespace) -> int:
 def _export(args: argparse.Namespace) -> int:
     from unigait.export import export_mismatch, export_onnx, load_policy
 
-    policy, dims = load_policy(args.checkpoint)
-    export_onnx(policy, args.out, dims["history_length"], dims["obs_dim"])
+    policy, dims, engine = load_policy(args.checkpoint)
+    export_onnx(policy, args.out, dims["history_length"], dims["obs_dim"], physics_engine=engine)
     print(
         f"wrote {args.out}: obs_history f32 [batch, {dims['history_length']}, "
-        f"{dims['obs_dim']}] -> actions f32 [batch, {dims['num_actions']}]"
+        f"{dims['obs_dim']}] -> actions f32 [batch, {dims['num_actions']}], trained on the "
+        f"{engine} engine"
     )
     if args.no_check:
         return 0

@@ -195,19 +195,27 @@ def resume_upright_curriculum(cfg: TrainConfig, checkpoint: dict[str, Any]) -> T
     return dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, task=task))
 
 
-def engine_overrides(task: Mapping[str, Any]) -> str:
-    """The task overrides that choose ``task``'s physics engine ("" when it keeps the default).
+#: The engine of a checkpoint or policy that does not say: every one written before learners
+#: recorded the engine trained on rapier unless its task chose (decision record 0026).
+ENGINE_BEFORE_RECORDING = "rapier"
 
-    An evaluation of a policy trained on one engine runs on that engine; the scenario sets the
-    rest of the task (decision record 0023).
+
+def checkpoint_engine(checkpoint: Mapping[str, Any]) -> str:
+    """The physics engine a checkpoint trained on.
+
+    The one it recorded, else its task's choice, else rapier (the default before learners
+    recorded it).
     """
-    engine = task.get("physics", {}).get("engine")
-    return f"physics.engine = {json.dumps(engine)}" if engine else ""
+    recorded = checkpoint.get("physics_engine")
+    if recorded:
+        return str(recorded)
+    task = checkpoint.get("config", {}).get("env", {}).get("task", {})
+    return str(task.get("physics", {}).get("engine") or ENGINE_BEFORE_RECORDING)
 
 
 def checkpoint_engine_overrides(checkpoint: Mapping[str, Any]) -> str:
-    """:func:`engine_overrides` of the task a checkpoint was trained on."""
-    return engine_overrides(checkpoint.get("config", {}).get("env", {}).get("task", {}))
+    """The task overrides that evaluate a checkpoint on the engine it trained on."""
+    return f"physics.engine = {json.dumps(checkpoint_engine(checkpoint))}"
 
 
 def same_task(a: dict[str, Any], b: dict[str, Any]) -> bool:

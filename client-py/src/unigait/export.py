@@ -1,7 +1,9 @@
 """Export the fused estimator + actor to ONE ONNX graph and check it against torch.
 
 Graph: input ``obs_history`` f32 [batch, 3, 53] (o_t, o_{t-1}, o_{t-2}), output ``actions``
-f32 [batch, 12] (the actor's mean), dynamic axis ``batch``.
+f32 [batch, 12] (the actor's mean), dynamic axis ``batch``. The model's metadata names the
+physics engine the policy trained on (``unigait.physics_engine``), which the server evaluates it
+on unless told otherwise (decision record 0026).
 """
 
 from __future__ import annotations
@@ -13,16 +15,19 @@ from typing import Any
 import numpy as np
 import torch
 
-from unigait.config import TrainConfig, apply
+from unigait.config import TrainConfig, apply, checkpoint_engine
 from unigait.modules import EstimatorActorPolicy
 from unigait.runners.on_policy_runner import build_networks
 
 #: ONNX opset of the export (tract-onnx and onnxruntime both run it).
 OPSET = 17
 
+#: The metadata key of the physics engine a policy trained on (the server reads it).
+PHYSICS_ENGINE_KEY = "unigait.physics_engine"
 
-def load_policy(checkpoint: str | Path) -> tuple[EstimatorActorPolicy, dict[str, int]]:
-    """The fused policy of a training checkpoint, in eval mode on the CPU, and its dims."""
+
+def load_policy(checkpoint: str | Path) -> tuple[EstimatorActorPolicy, dict[str, int], str]:
+    """The fused policy of a checkpoint (eval mode, CPU), its dims and its training engine."""
     state: dict[str, Any] = torch.load(checkpoint, map_location="cpu", weights_only=False)
     cfg = apply(TrainConfig(), state["config"])
     dims = state["dims"]
@@ -32,13 +37,21 @@ def load_policy(checkpoint: str | Path) -> tuple[EstimatorActorPolicy, dict[str,
     actor_critic.load_state_dict(state["actor_critic"])
     estimator.load_state_dict(state["estimator"])
     policy = EstimatorActorPolicy(estimator, actor_critic.actor).eval()
-    return policy, dims
+    return policy, dims, checkpoint_engine(state)
 
 
 def export_onnx(
-    policy: EstimatorActorPolicy, path: str | Path, history_length: int = 3, obs_dim: int = 53
+    policy: EstimatorActorPolicy,
+    path: str | Path,
+    history_length: int = 3,
+    obs_dim: int = 53,
+    *,
+    physics_engine: str | None = None,
 ) -> None:
-    """Write ``policy`` as ONNX (legacy TorchScript exporter, ``dynamo=False``)."""
+    """Write ``policy`` as ONNX (legacy TorchScript exporter, ``dynamo=False``).
+
+    Stamped with the ``physics_engine`` it trained on, where given.
+    """
     policy = policy.eval().to("cpu")
     dummy = torch.zeros(1, history_length, obs_dim)
     with warnings.catch_warnings():
@@ -54,6 +67,32 @@ def export_onnx(
             opset_version=OPSET,
             dynamo=False,
         )
+    if physics_engine:
+        out = Path(path)
+        out.write_bytes(with_metadata(out.read_bytes(), PHYSICS_ENGINE_KEY, physics_engine))
+
+
+def with_metadata(onnx: bytes, key: str, value: str) -> bytes:
+    """``onnx`` with one more ``ModelProto.metadata_props`` entry (field 14).
+
+    A repeated field may be appended to a serialised message, so the graph's bytes stay as they
+    were (and no ``onnx`` package is needed to write it).
+    """
+    entry = _length_delimited(1, key.encode()) + _length_delimited(2, value.encode())
+    return onnx + _length_delimited(14, entry)
+
+
+def _length_delimited(field: int, payload: bytes) -> bytes:
+    return _varint(field << 3 | 2) + _varint(len(payload)) + payload
+
+
+def _varint(n: int) -> bytes:
+    out = bytearray()
+    while True:
+        low, n = n & 0x7F, n >> 7
+        out.append(low | (0x80 if n else 0))
+        if not n:
+            return bytes(out)
 
 
 def export_mismatch(

@@ -17,6 +17,7 @@ mod checks;
 mod elu;
 mod error;
 mod history;
+mod metadata;
 mod onnx;
 mod policy;
 mod sandbox;
@@ -24,6 +25,7 @@ mod sandbox;
 pub use checks::{ALLOWED_OPS, ModelLimits, check_model, parse_checked, scan_wire};
 pub use error::PolicyError;
 pub use history::ObsHistory;
+pub use metadata::{PHYSICS_ENGINE_KEY, metadata, trained_engine, with_metadata};
 pub use onnx::{InputLayout, OnnxPolicy};
 pub use policy::{ConstantPolicy, Policy, PolicySpec};
 pub use sandbox::{

@@ -66,6 +66,7 @@ pub fn spec(
         terrain: terrain.into(),
         body_names: model.bodies.iter().map(|b| b.name.clone()).collect(),
         robot_drawing_rrd: Default::default(),
+        physics_engine: cfg.physics.engine.name().into(),
     })
 }
 

@@ -17,6 +17,7 @@ use unigait_policy::{OnnxPolicy, Policy, PolicyError, PolicySpec, SandboxLimits,
 use unigait_proto::v1;
 use unigait_record::{RecordError, RecordOptions, Recorder};
 use unigait_sim::env::VecEnv;
+use unigait_sim::physics::EngineKind;
 use unigait_sim::robot::RobotModel;
 use unigait_sim::task::TaskConfig;
 
@@ -143,6 +144,41 @@ fn load(
     }))
 }
 
+/// The engine the policies were trained on, from their ONNX metadata: None when neither says;
+/// two policies that name different engines are the client's to reconcile.
+fn trained_engine(policy: &[u8], biped: &[u8]) -> Result<Option<EngineKind>, ServiceError> {
+    let mut found: Option<(EngineKind, &str)> = None;
+    for (which, bytes) in [("policy_onnx", policy), ("biped_policy_onnx", biped)] {
+        if bytes.is_empty() {
+            continue;
+        }
+        let Some(name) =
+            unigait_policy::trained_engine(bytes).map_err(|e| policy_error(which, e))?
+        else {
+            continue;
+        };
+        let names = EngineKind::ALL.map(EngineKind::name).join(", ");
+        let engine = EngineKind::from_name(&name).ok_or_else(|| {
+            ServiceError::InvalidArgument(format!(
+                "{which}: its metadata says it trained on physics engine {name:?}, which this \
+                 server does not have ({names}); set physics.engine in task_overrides_toml"
+            ))
+        })?;
+        match found {
+            Some((first, first_which)) if first != engine => {
+                return Err(ServiceError::InvalidArgument(format!(
+                    "{first_which} trained on the {} engine and {which} on the {} engine; set \
+                     physics.engine in task_overrides_toml to choose one",
+                    first.name(),
+                    engine.name()
+                )));
+            }
+            _ => found = Some((engine, which)),
+        }
+    }
+    Ok(found.map(|(e, _)| e))
+}
+
 /// Records the first case the evaluation runs, following the asked env (`record_env`).
 struct FirstCaseRecorder {
     recorder: Option<Recorder>,
@@ -225,13 +261,19 @@ pub fn handle(
         }
     };
     // The scenario sets the task's commands, modes and terrain; the overrides set the rest
-    // (the physics engine a policy was trained on, friction, ...).
-    let base_config = overrides::apply(
+    // (the physics engine, friction, ...). Where they leave the engine, it is the one the
+    // policies name in their metadata (decision record 0026), else the server's.
+    let mut base_config = overrides::apply(
         &ctx.base_config,
         &request.task_overrides_toml,
         "EvaluateRequest.task_overrides_toml",
         &ctx.limits,
     )?;
+    if !TaskConfig::overrides_set(&request.task_overrides_toml, "physics.engine")
+        && let Some(engine) = trained_engine(&request.policy_onnx, &request.biped_policy_onnx)?
+    {
+        base_config.physics.engine = engine;
+    }
     let options = EvalOptions {
         num_envs: (n > 0).then_some(n),
         seed: request.seed,

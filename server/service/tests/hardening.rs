@@ -607,6 +607,50 @@ async fn an_evaluation_runs_on_the_engine_its_overrides_name_and_bad_ones_are_th
     server.shutdown().await;
 }
 
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_evaluation_runs_on_the_engine_its_policy_names_unless_the_overrides_choose() {
+    use unigait_policy::{PHYSICS_ENGINE_KEY, with_metadata};
+    let server = TestServer::with_limits(Limits::default()).await;
+    let mut c = server.client().await;
+    let stamped = |engine: &str| with_metadata(&test_policy(), PHYSICS_ENGINE_KEY, engine);
+    let rapier = "physics.engine = \"rapier\"";
+    for (policy, biped, overrides, engine) in [
+        (stamped("articulated"), vec![], "", "articulated"),
+        (stamped("rapier"), vec![], "", "rapier"),
+        (stamped("articulated"), vec![], rapier, "rapier"),
+        // Two policies: the one that says is enough; when both say, the overrides decide.
+        (test_policy(), stamped("articulated"), "", "articulated"),
+        (stamped("rapier"), stamped("articulated"), rapier, "rapier"),
+    ] {
+        let mut request = evaluate_request(policy, "flat_quad", 2);
+        request.biped_policy_onnx = biped.into();
+        request.task_overrides_toml = overrides.into();
+        let reply = c.evaluate(request).await.expect(engine).into_inner();
+        let report: serde_json::Value =
+            serde_json::from_str(&reply.report_json).expect("report JSON");
+        assert_eq!(report["physics_engine"], engine, "{overrides:?}");
+    }
+    for (policy, biped, names) in [
+        (
+            stamped("warp"),
+            vec![],
+            "policy_onnx: its metadata says it trained on physics engine \"warp\"",
+        ),
+        (
+            stamped("rapier"),
+            stamped("articulated"),
+            "biped_policy_onnx on the articulated",
+        ),
+    ] {
+        let mut request = evaluate_request(policy, "flat_quad", 1);
+        request.biped_policy_onnx = biped.into();
+        let status = c.evaluate(request).await.expect_err(names);
+        assert_eq!(status.code(), Code::InvalidArgument, "{status:?}");
+        assert!(status.message().contains(names), "{}", status.message());
+    }
+    server.shutdown().await;
+}
+
 /// A graph `obs_history [batch, 3, 53] -> Flatten -> Gemm(W) (+ extra) -> actions [batch, 12]`
 /// with `extra` nodes and initialisers spliced in; `bias` names the tensor added to the output.
 fn policy_graph(

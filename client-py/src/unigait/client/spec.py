@@ -105,6 +105,8 @@ class Spec:
             older servers).
         robot_drawing_rrd: The robot's shapes as a rerun recording (asked for with
             ``SessionConfig.robot_drawing``).
+        physics_engine: The engine the envs step in (``"rapier"`` or ``"articulated"``; empty
+            from older servers).
     """
 
     protocol_version: str
@@ -124,6 +126,7 @@ class Spec:
     terrain: str = ""
     body_names: tuple[str, ...] = ()
     robot_drawing_rrd: bytes = b""
+    physics_engine: str = ""
 
     def tensor(self, name: str) -> TensorSpec:
         """The spec of tensor ``name``."""
@@ -225,6 +228,7 @@ class Spec:
             terrain=msg.terrain,
             body_names=tuple(msg.body_names),
             robot_drawing_rrd=bytes(msg.robot_drawing_rrd),
+            physics_engine=msg.physics_engine,
         )
 
 

@@ -17,7 +17,7 @@ from typing import Any, Protocol
 import torch
 
 from unigait.algorithms import PPO, EstimatorLearning
-from unigait.config import TrainConfig, apply, same_task
+from unigait.config import TrainConfig, apply, checkpoint_engine, same_task
 from unigait.env import BipedPoseStats, EpisodeStats, ObservationHistory, TorchStep, TorchVecEnv
 from unigait.env.biped_pose import BIPED_MODE
 from unigait.live_view import RobotDrawer
@@ -88,6 +88,9 @@ class OnPolicyRunner:
         self.cfg = cfg
         self.device = env.device
         spec = env.spec
+        # What the checkpoints record and the exported policies name (decision record 0026);
+        # a server from before the spec said falls back to the task's choice.
+        self.physics_engine = spec.physics_engine or checkpoint_engine({"config": cfg.to_dict()})
         self.dims = {
             "obs_dim": spec.obs_dim,
             "label_dim": spec.label_dim,
@@ -335,6 +338,7 @@ class OnPolicyRunner:
             "config": self.cfg.to_dict(),
             "dims": self.dims,
             "provenance": dict(self.provenance),
+            "physics_engine": self.physics_engine,
         }
 
     def save(self, path: Path) -> None:

@@ -22,7 +22,6 @@ import torch
 from unigait.client import Client, ConnectionOptions, open_session
 from unigait.config import (
     TrainConfig,
-    engine_overrides,
     resume_upright_curriculum,
     resumed_terrain_levels,
     session_config,
@@ -110,7 +109,7 @@ def evaluate_milestone(
 
     The recipes' milestone checks and the live view's evaluations both come from here, so the
     curve a user watches is the one a stage stops on. The scenarios run on the physics engine
-    the runner trains on (its task's ``physics.engine``); they set the rest of the task.
+    the runner trains on (the one its session reports); they set the rest of the task.
 
     Returns:
         Whether every criterion is met, and the record (``validation.jsonl``'s row).
@@ -122,7 +121,11 @@ def evaluate_milestone(
     with tempfile.TemporaryDirectory() as tmp:
         onnx_path = Path(tmp) / "policy.onnx"
         export_onnx(
-            runner.policy(), onnx_path, runner.dims["history_length"], runner.dims["obs_dim"]
+            runner.policy(),
+            onnx_path,
+            runner.dims["history_length"],
+            runner.dims["obs_dim"],
+            physics_engine=runner.physics_engine,
         )
         onnx = onnx_path.read_bytes()
         with Client(address, **connection) as client:
@@ -132,7 +135,7 @@ def evaluate_milestone(
                     scenario,
                     num_envs=target.envs_for(scenario, envs),
                     seed=seed,
-                    task_overrides_toml=engine_overrides(runner.cfg.env.task),
+                    task_overrides_toml=f"physics.engine = {json.dumps(runner.physics_engine)}",
                 )
                 evals[scenario] = dict(result.metrics)
     met, margin = target.score(evals)

@@ -36,6 +36,14 @@ impl EngineKind {
             EngineKind::Articulated => "articulated",
         }
     }
+
+    /// Every engine, the default first.
+    pub const ALL: [EngineKind; 2] = [EngineKind::Rapier, EngineKind::Articulated];
+
+    /// The engine the config calls `name`.
+    pub fn from_name(name: &str) -> Option<EngineKind> {
+        Self::ALL.into_iter().find(|e| e.name() == name)
+    }
 }
 
 /// A group of robots over one terrain, in the engine the config chose.

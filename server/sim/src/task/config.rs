@@ -458,6 +458,17 @@ impl TaskConfig {
         Ok(config)
     }
 
+    /// Whether override text `text` sets the dotted key `key` (e.g. `physics.engine`); false
+    /// for text that does not parse (`with_overrides` reports that).
+    pub fn overrides_set(text: &str, key: &str) -> bool {
+        let Ok(value) = toml::from_str::<toml::Value>(text) else {
+            return false;
+        };
+        key.split('.')
+            .try_fold(&value, |v, part| v.get(part))
+            .is_some()
+    }
+
     /// The config as a TOML document.
     pub fn to_toml(&self) -> Result<String, SimError> {
         toml::to_string(self).map_err(|e| SimError::ConfigSyntax(e.to_string()))
