@@ -1,7 +1,9 @@
 """Config loading/overrides and the fused ONNX export."""
 
 import dataclasses
+import json
 import tomllib
+from pathlib import Path
 
 import numpy as np
 import onnx
@@ -165,3 +167,19 @@ def test_metadata_is_appended_as_protobuf_field_14(tmp_path):
         ("a", 300),
         ("unigait.physics_engine", 6),
     ]
+
+
+def test_every_shipped_policy_names_the_engine_its_reports_ran_on():
+    """The server evaluates a shipped policy on the engine it names: the one its reports were
+    measured on (reports from before reports named the engine ran on rapier)."""
+    shipped = sorted((Path(__file__).resolve().parents[2] / "assets" / "policies").iterdir())
+    assert len(shipped) >= 5
+    for folder in shipped:
+        stamp = {p.key: p.value for p in onnx.load(folder / "policy.onnx").metadata_props}
+        engine = stamp.get("unigait.physics_engine")
+        ran_on = {
+            json.loads(r.read_text()).get("physics_engine", "rapier")
+            for r in (folder / "reports").glob("*.json")
+            if not r.name.startswith("sim2sim_")
+        }
+        assert ran_on == {engine}, (folder.name, engine, ran_on)
