@@ -1,9 +1,10 @@
-"""A session on the articulated engine (issue 34), chosen by the task overrides alone."""
+"""Sessions on either engine (issue 34), chosen by the task overrides alone."""
 
 import numpy as np
 from unigait.client import SessionConfig, open_session
 
 ARTICULATED = '[physics]\nengine = "articulated"\n'
+RAPIER = '[physics]\nengine = "rapier"\n'
 CALM = (
     "[init]\nhip = [0.0, 0.0]\nthigh = [0.0, 0.0]\ncalf = [0.0, 0.0]\npitch = [0.0, 0.0]\n"
     "linvel = [0.0, 0.0]\nangvel = [0.0, 0.0]\n[randomization]\nenabled = false\n"
@@ -28,12 +29,14 @@ def _stand(server: str, overrides: str, steps: int = 100) -> tuple[np.ndarray, n
 
 def test_a_session_runs_on_the_articulated_engine(server):
     """Standing 2 s at action 0: no fall on either engine, the articulated run repeats bit for
-    bit, and it is not the rapier run (the override reached the physics)."""
+    bit and is the default's, and it is not the rapier run (the override reached the physics)."""
     a, a_ended = _stand(server, CALM + ARTICULATED)
     again, _ = _stand(server, CALM + ARTICULATED)
-    r, r_ended = _stand(server, CALM)
+    default, _ = _stand(server, CALM)
+    r, r_ended = _stand(server, CALM + RAPIER)
     assert not a_ended.any() and not r_ended.any()
     np.testing.assert_array_equal(a, again)
+    np.testing.assert_array_equal(a, default)
     assert not np.array_equal(a, r)
     # Both hold the default pose with the PD's sag (observed q: angle minus default, scale 1):
     # the engines' stances agree within 0.05 rad (measured 0.006).

@@ -57,6 +57,8 @@ def test_a_rust_learner_run_ships_and_the_server_evaluates_it(
     assert header["iteration"] == 2 and header["total_env_steps"] == 2 * 8 * 24
     assert header["config"]["env"]["num_envs"] == 8
     assert header["provenance"]["learner"].startswith("unigait-learner")
+    # The recipe leaves the engine to the server: its default, which the checkpoint records.
+    assert header["physics_engine"] == "articulated"
 
     monkeypatch.setenv("UNIGAIT_LEARNER_BIN", str(learner_bin))
     out = tmp_path / "policies"
@@ -71,6 +73,7 @@ def test_a_rust_learner_run_ships_and_the_server_evaluates_it(
     assert not (folder / "model.pt").exists()
     onnx = (folder / "policy.onnx").read_bytes()
     assert onnx[:2] == b"\x08\x08"  # ModelProto.ir_version = 8: a graph, not an error page
+    assert b"unigait.physics_engine\x12\x0barticulated" in onnx  # its metadata entry
     evals = json.loads((folder / "eval.json").read_text())
     quad = evals["tracking_quad"]
     # Two iterations do not walk, and the server measured it: a real figure, not a default.
@@ -78,7 +81,7 @@ def test_a_rust_learner_run_ships_and_the_server_evaluates_it(
     card = (folder / "MODEL_CARD.md").read_text()
     assert "unigait-learner train --recipe quad_flat --log-dir runs/quad_flat" in card
     assert "no GPU (unigait-learner, burn on the CPU)" in card
-    assert "on the `rapier` physics engine" in card
+    assert "on the `articulated` physics engine" in card
     assert "Chosen among the run's last 2 checkpoints" in card
 
 

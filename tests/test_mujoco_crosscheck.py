@@ -247,7 +247,7 @@ def _results(
     if armature is not None:
         options = dataclasses.replace(options, armature=armature)
     return (
-        run_ours(binary, names, armature),
+        run_ours(binary, names, armature, engine="rapier"),
         scenarios.run(names, options),
     )
 

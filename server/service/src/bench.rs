@@ -7,7 +7,7 @@ use anyhow::Result;
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
-use unigait_sim::physics::PhysicsCounters;
+use unigait_sim::physics::{EngineKind, PhysicsCounters};
 use unigait_sim::prelude::*;
 use unigait_sim::task::projected_gravity;
 
@@ -57,7 +57,7 @@ pub struct BenchArgs {
     #[arg(long)]
     pub reference_loop: bool,
     /// Build the robots without their joints (13 free bodies each, torques still applied): the
-    /// cost of rapier's pipeline outside the joint solver. The robots fall apart: not a
+    /// cost of rapier's pipeline outside the joint solver (rapier's engine only). The robots fall apart: not a
     /// simulation of the Go2.
     #[arg(long)]
     pub no_joints: bool,
@@ -241,6 +241,12 @@ pub fn run(args: &BenchArgs) -> Result<BenchReport> {
     for o in &args.overrides {
         config = config.with_overrides(o)?;
     }
+    if args.no_joints && config.physics.engine != EngineKind::Rapier {
+        anyhow::bail!(
+            "--no-joints removes rapier's impulse joints; the articulated engine's joints are its \
+             coordinates: add --set 'physics.engine = \"rapier\"'"
+        );
+    }
     let decimation = config.env.decimation;
     let selection = unigait_proto::v1::TerrainConfig {
         kind: args.terrain.clone(),
@@ -354,9 +360,14 @@ mod tests {
         assert_eq!(report.extra_iteration_share, 0.0);
     }
 
+    /// rapier's engine: the contact and constraint counts below are its solver's.
+    fn rapier() -> Vec<String> {
+        vec!["physics.engine = \"rapier\"".to_string()]
+    }
+
     #[test]
     fn standing_robots_have_eight_contacts_and_twelve_joints() {
-        let report = run(&reference_args(BenchActions::Stand, vec![])).expect("bench");
+        let report = run(&reference_args(BenchActions::Stand, rapier())).expect("bench");
         // One point per manifold on the plane: the 4 feet, and the 4 lower shin capsules
         // (`*_calflower1`), about 18 mm above the ground at the default pose, inside rapier's
         // 20 mm contact prediction distance. The solver adds the 12 joints to those 8.
@@ -375,8 +386,16 @@ mod tests {
     }
 
     #[test]
-    fn without_joints_the_solver_sees_only_contacts() {
+    fn no_joints_is_refused_on_the_articulated_engine() {
         let mut args = reference_args(BenchActions::Stand, vec![]);
+        args.no_joints = true;
+        let err = run(&args).expect_err("no joints to remove").to_string();
+        assert!(err.contains("physics.engine = \"rapier\""), "{err}");
+    }
+
+    #[test]
+    fn without_joints_the_solver_sees_only_contacts() {
+        let mut args = reference_args(BenchActions::Stand, rapier());
         args.no_joints = true;
         let report = run(&args).expect("bench");
         assert!(report.no_joints);

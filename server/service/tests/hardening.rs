@@ -569,8 +569,8 @@ async fn an_evaluation_runs_on_the_engine_its_overrides_name_and_bad_ones_are_th
     let mut c = server.client().await;
     let mut metrics = Vec::new();
     for (overrides, engine) in [
-        ("", "rapier"),
-        ("physics.engine = \"articulated\"", "articulated"),
+        ("", "articulated"),
+        ("physics.engine = \"rapier\"", "rapier"),
     ] {
         let mut request = evaluate_request(test_policy(), "flat_quad", 2);
         request.task_overrides_toml = overrides.into();

@@ -45,10 +45,19 @@ fn lone_robot(model: &RobotModel, z: f32) -> ArticulatedWorld {
 fn the_config_selects_the_engine() {
     let c = articulated("");
     assert_eq!(c.physics.engine, EngineKind::Articulated);
+    // The default, in the code and in the embedded task file alike (issue 34's gates held).
     assert_eq!(
         TaskConfig::embedded_default().physics.engine,
-        EngineKind::Rapier
+        EngineKind::Articulated
     );
+    assert_eq!(
+        TaskConfig::default().physics.engine,
+        EngineKind::Articulated
+    );
+    let rapier = TaskConfig::embedded_default()
+        .with_overrides("physics.engine = \"rapier\"")
+        .expect("rapier stays an option");
+    assert_eq!(rapier.physics.engine, EngineKind::Rapier);
     assert!(
         TaskConfig::embedded_default()
             .with_overrides("physics.engine = \"mujoco\"")

@@ -178,7 +178,12 @@ def run(envs: int, steps: int, solver: str, seed: int = 0, warmup: int = 20) -> 
 
 
 def server_bench(
-    binary: Path, envs: int, steps: int, no_joints: bool = False, seed: int = 1
+    binary: Path,
+    envs: int,
+    steps: int,
+    no_joints: bool = False,
+    seed: int = 1,
+    engine: str = "rapier",
 ) -> dict[str, Any]:
     """Run ``unigait-server bench`` on the reference loop, one thread, and return its record.
 
@@ -188,12 +193,14 @@ def server_bench(
         steps: Policy steps timed (after its 20 warm-up steps).
         no_joints: Build the robots without their joints (``--no-joints``).
         seed: Seed of the server's bench.
+        engine: ``physics.engine`` (rapier's stages are the ones the tables break down).
 
     Returns:
-        The bench's JSON record (``us_per_robot_step`` holds rapier's stages).
+        The bench's JSON record (``us_per_robot_step`` holds the engine's stages).
     """
     cmd = [str(binary), "bench", "--envs", str(envs), "--steps", str(steps), "--threads", "1"]
-    cmd += ["--actions", "random", "--reference-loop", "--seed", str(seed), "--json"]
+    cmd += ["--actions", "random", "--reference-loop", "--seed", str(seed)]
+    cmd += ["--set", f"physics.engine = {json.dumps(engine)}", "--json"]
     if no_joints:
         cmd.append("--no-joints")
     out = subprocess.run(cmd, check=True, capture_output=True, text=True).stdout

@@ -1,6 +1,6 @@
 //! The physics engine of a group of robots, chosen per session by `physics.engine` in the task
-//! config: `"rapier"` (impulse joints in rapier, the default) or `"articulated"` (our own
-//! reduced-coordinate dynamics, issue 34, with parry's collision queries). Both offer the same
+//! config: `"articulated"` (our own reduced-coordinate dynamics, issue 34, with parry's collision
+//! queries; the default) or `"rapier"` (impulse joints in rapier). Both offer the same
 //! operations, which [`PhysicsWorld`] dispatches; the task layer does not know which one runs.
 
 use rapier3d::math::{Pose, Vec3};
@@ -22,9 +22,10 @@ use crate::terrain::Terrain;
 #[serde(rename_all = "lowercase")]
 pub enum EngineKind {
     /// rapier's rigid bodies held together by impulse joints.
-    #[default]
     Rapier,
-    /// Reduced coordinates: a floating-base tree, joint-space contacts and limits.
+    /// Reduced coordinates: a floating-base tree, joint-space contacts and limits (the default
+    /// since it passed issue 34's gates).
+    #[default]
     Articulated,
 }
 
@@ -37,8 +38,8 @@ impl EngineKind {
         }
     }
 
-    /// Every engine, the default first.
-    pub const ALL: [EngineKind; 2] = [EngineKind::Rapier, EngineKind::Articulated];
+    /// Every engine.
+    pub const ALL: [EngineKind; 2] = [EngineKind::Articulated, EngineKind::Rapier];
 
     /// The engine the config calls `name`.
     pub fn from_name(name: &str) -> Option<EngineKind> {

@@ -7,8 +7,8 @@ use super::engine::EngineKind;
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct PhysicsParams {
-    /// The dynamics: `"rapier"` (impulse joints, default) or `"articulated"` (reduced
-    /// coordinates, issue 34). The articulated engine reads `dt` and `gravity` only; the solver
+    /// The dynamics: `"articulated"` (reduced coordinates, issue 34; default) or `"rapier"`
+    /// (impulse joints). The articulated engine reads `dt` and `gravity` only; the solver
     /// schedule and the inertia floor below are rapier's.
     pub engine: EngineKind,
     /// Physics time step (s). Default 0.005 (200 Hz).
@@ -45,7 +45,7 @@ pub struct PhysicsParams {
 impl Default for PhysicsParams {
     fn default() -> Self {
         Self {
-            engine: EngineKind::Rapier,
+            engine: EngineKind::Articulated,
             dt: 0.005,
             solver_iterations: 2,
             pgs_iterations: 3,
