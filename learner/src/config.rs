@@ -323,6 +323,31 @@ impl TrainConfig {
     }
 }
 
+/// A `--set` line, `section.key=value` (`ppo.entropy_coef=0.005`,
+/// `env.task.physics.engine="rapier"`), as the table to merge into a config. The value is TOML;
+/// a bare word that is not TOML is taken as a string, as in the Python learner's `--set`.
+pub fn set_line(text: &str) -> Result<toml::Table, ConfigError> {
+    let bad = || {
+        ConfigError::Toml(format!(
+            "--set must look like section.key=value, got {text:?}"
+        ))
+    };
+    let (path, raw) = text.split_once('=').ok_or_else(bad)?;
+    let keys: Vec<&str> = path.trim().split('.').map(str::trim).collect();
+    if keys.len() < 2 || keys.iter().any(|k| k.is_empty()) {
+        return Err(bad());
+    }
+    let raw = raw.trim();
+    let mut value = toml::from_str::<toml::Table>(&format!("v = {raw}"))
+        .ok()
+        .and_then(|mut t| t.remove("v"))
+        .unwrap_or_else(|| toml::Value::String(raw.to_string()));
+    for key in keys[1..].iter().rev() {
+        value = toml::Value::Table(toml::Table::from_iter([(key.to_string(), value)]));
+    }
+    Ok(toml::Table::from_iter([(keys[0].to_string(), value)]))
+}
+
 /// `base` with `update` merged in, tables recursively (the task table's rule).
 pub fn merged(mut base: toml::Table, update: &toml::Table) -> toml::Table {
     for (key, value) in update {
@@ -382,6 +407,37 @@ mod tests {
             .insert("activation".into(), "tanh".into());
         let err = TrainConfig::from_table(t).unwrap_err().to_string();
         assert!(err.contains("only \"elu\""), "{err}");
+    }
+
+    #[test]
+    fn set_lines_merge_into_a_config_and_bad_ones_are_named() {
+        let mut t = TrainConfig::default().to_table();
+        for line in [
+            "ppo.entropy_coef=0.005",
+            "env.task.physics.engine = \"rapier\"",
+            "env.task.rewards.weights.quad_foot_clearance=3",
+            "env.terrain=curriculum",
+        ] {
+            t = merged(t, &set_line(line).unwrap());
+        }
+        let cfg = TrainConfig::from_table(t).unwrap();
+        assert_eq!(cfg.ppo.entropy_coef, 0.005);
+        assert_eq!(cfg.task_engine(), Some("rapier"));
+        assert_eq!(
+            cfg.env.task["rewards"]["weights"]["quad_foot_clearance"].as_integer(),
+            Some(3)
+        );
+        assert_eq!(cfg.env.terrain, "curriculum");
+        for bad in ["entropy_coef=0.1", "ppo.=1", "ppo.entropy_coef"] {
+            let err = set_line(bad).unwrap_err().to_string();
+            assert!(err.contains("section.key=value"), "{err}");
+        }
+        let unknown = merged(
+            TrainConfig::default().to_table(),
+            &set_line("ppo.entropy=0.1").unwrap(),
+        );
+        let err = TrainConfig::from_table(unknown).unwrap_err().to_string();
+        assert!(err.contains("entropy"), "{err}");
     }
 
     #[test]

@@ -55,6 +55,10 @@ struct TrainArgs {
     /// Seed of the sessions and the learner (default: the recipe's).
     #[arg(long)]
     seed: Option<u64>,
+    /// A config line for every stage, `section.key=value` (repeatable), e.g.
+    /// `ppo.entropy_coef=0.005` or `env.task.physics.engine="rapier"`.
+    #[arg(long = "set", value_name = "SECTION.KEY=VALUE")]
+    sets: Vec<String>,
     /// The run's folder: stages, progress.csv, checkpoints, final.ckpt, policy.onnx. A folder
     /// holding a run of the same recipe is resumed.
     #[arg(long)]
@@ -78,6 +82,7 @@ fn train(args: TrainArgs) -> Result<()> {
         iterations: args.iterations,
         num_envs: args.num_envs,
         seed: args.seed,
+        sets: args.sets,
     };
     let mut local = None;
     let address = match args.server {

@@ -16,7 +16,7 @@ use serde_json::json;
 use unigait_client::Client;
 
 use crate::checkpoint::Checkpoint;
-use crate::config::{TrainConfig, engine_overrides};
+use crate::config::{TrainConfig, engine_overrides, merged, set_line};
 use crate::learner::{Envs, Learner, Scalars, session_config};
 use crate::log::ProgressLog;
 use crate::milestone::{self, load_milestone, milestones_file};
@@ -39,12 +39,24 @@ pub struct Overrides {
     pub num_envs: Option<u32>,
     /// `env.seed` and `runner.seed`.
     pub seed: Option<u64>,
+    /// `--set` lines (`section.key=value`), merged into every stage before the above.
+    pub sets: Vec<String>,
 }
 
 impl Overrides {
     /// `recipe` with the overrides in every stage.
-    pub fn apply(&self, mut recipe: Recipe) -> Recipe {
+    pub fn apply(&self, mut recipe: Recipe) -> Result<Recipe> {
+        let updates = self
+            .sets
+            .iter()
+            .map(|line| set_line(line))
+            .collect::<Result<Vec<_>, _>>()?;
         for s in &mut recipe.stages {
+            if !updates.is_empty() {
+                let table = updates.iter().fold(s.config.to_table(), merged);
+                s.config = TrainConfig::from_table(table)
+                    .map_err(|e| Error::Run(format!("--set, stage {}: {e}", s.name)))?;
+            }
             if let Some(n) = self.iterations {
                 s.stop.iterations = n;
             }
@@ -56,7 +68,7 @@ impl Overrides {
                 s.config.runner.seed = seed;
             }
         }
-        recipe
+        Ok(recipe)
     }
 }
 
@@ -95,15 +107,19 @@ fn prepare_log_dir(recipe: &Recipe, overrides: &Overrides, log_dir: &Path) -> Re
         "learner": "unigait-learner",
         "num_envs": overrides.num_envs,
         "seed": overrides.seed,
+        "sets": overrides.sets,
     });
     if stored.exists() {
         let same_text = std::fs::read_to_string(&stored)? == recipe.text;
         let old = read_json(&log_dir.join(RUN_FILE)).unwrap_or_default();
-        let same_envs =
-            old.get("num_envs") == run.get("num_envs") && old.get("seed") == run.get("seed");
+        // A run from before --set existed recorded no sets: the same as none.
+        let old_sets = old.get("sets").cloned().unwrap_or_else(|| json!([]));
+        let same_envs = old.get("num_envs") == run.get("num_envs")
+            && old.get("seed") == run.get("seed")
+            && old_sets == run["sets"];
         if !same_text || !same_envs {
             return Err(Error::Run(format!(
-                "{} holds a run of another recipe text, --num-envs or --seed than this one ({}): \
+                "{} holds a run of another recipe text, --num-envs, --seed or --set than this one ({}): \
                  give another --log-dir",
                 log_dir.display(),
                 old.get("recipe").and_then(|r| r.as_str()).unwrap_or("?"),
@@ -457,8 +473,8 @@ pub async fn run_recipe(
             recipe.name, s.name
         )));
     }
+    let recipe = overrides.apply(recipe)?;
     prepare_log_dir(&recipe, overrides, log_dir)?;
-    let recipe = overrides.apply(recipe);
     let mut client = Client::connect(address).await?;
     let mut final_path: Option<PathBuf> = None;
     for (i, stage) in recipe.stages.iter().enumerate() {

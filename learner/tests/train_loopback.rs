@@ -63,6 +63,7 @@ fn trains_resumes_and_exports_against_the_real_server() {
         iterations: Some(iterations),
         num_envs: Some(ENVS),
         seed: Some(3),
+        sets: Vec::new(),
     };
 
     // Two iterations.
