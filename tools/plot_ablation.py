@@ -1,0 +1,92 @@
+"""The paper's Fig. 2 ablation: the three arms' curves per iteration in one figure (issue 33).
+
+    .venv/bin/python tools/plot_ablation.py assets/training/ablation --out FIG.png
+
+Reads ``<root>/<arm>/01_ablation/progress.csv`` for the arms ``ours``, ``no_task_indicator``
+and ``no_upright_indicator``. Panels against iterations: the quad linear-velocity tracking
+reward and the biped base-angle reward per step (the paper's two curves), and the share of
+biped env-steps spent upright (pitch above I_up's threshold), which no reward mask touches.
+The reward terms are as paid: without task indicators both modes pay every term, so that arm's
+curves are not masked to one mode. Prints each arm's last iteration and its final means.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+
+ARMS = (
+    ("ours", "ours"),
+    ("no_task_indicator", "w/o task indicators"),
+    ("no_upright_indicator", "w/o upright indicator"),
+)
+PANELS = (
+    ("step_reward/quad_tracking_lin_vel", "quad linear velocity tracking reward per step"),
+    ("step_reward/biped_base_angle", "biped base angle reward per step"),
+    ("biped_pose/upright_share", "biped mode: share of steps upright"),
+)
+
+
+def _rows(folder: Path) -> list[dict[str, str]]:
+    with (folder / "progress.csv").open() as f:
+        return list(csv.DictReader(f))
+
+
+def _series(rows: list[dict[str, str]], key: str) -> tuple[list[float], list[float]]:
+    xs, ys = [], []
+    for r in rows:
+        if r.get(key):
+            xs.append(float(r["iteration"]))
+            ys.append(float(r[key]))
+    return xs, ys
+
+
+def _smooth(ys: list[float], window: int = 20) -> list[float]:
+    out, total = [], 0.0
+    for i, y in enumerate(ys):
+        total += y - (ys[i - window] if i >= window else 0.0)
+        out.append(total / min(i + 1, window))
+    return out
+
+
+def main() -> None:
+    """Draw the figure and print where each arm stands."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("root", type=Path, help="folder holding one run folder per arm")
+    parser.add_argument("--out", required=True)
+    args = parser.parse_args()
+    fig, axes = plt.subplots(1, len(PANELS), figsize=(15, 4.2))
+    for index, (arm, label) in enumerate(ARMS):
+        stage = args.root / arm / "01_ablation"
+        if not (stage / "progress.csv").exists():
+            print(f"{arm}: no progress.csv")
+            continue
+        rows = _rows(stage)
+        finals = []
+        for ax, (key, _) in zip(axes, PANELS, strict=True):
+            xs, ys = _series(rows, key)
+            ax.plot(xs, _smooth(ys), color=f"C{index}", label=label)
+            tail = ys[-50:]
+            finals.append(f"{key.split('/')[-1]} {sum(tail) / max(len(tail), 1):.4f}")
+        steps = float(rows[-1]["total_env_steps"]) / 1e6
+        print(
+            f"{arm}: iteration {rows[-1]['iteration']} ({steps:.1f} M env steps); last 50: "
+            + ", ".join(finals)
+        )
+    for ax, (_, title) in zip(axes, PANELS, strict=True):
+        ax.set_title(title, fontsize=10)
+        ax.set_xlabel("iteration (512 envs x 24 steps)")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(args.out, dpi=110)
+
+
+if __name__ == "__main__":
+    main()
