@@ -69,6 +69,7 @@ def run(
     policy: EstimatorActorPolicy | None,
     obs_dim: int,
     args: argparse.Namespace,
+    engine: str,
 ) -> tuple[str, TermsByPose | None]:
     """One batch of pitched starts, driven by ``policy`` (None: zero action).
 
@@ -79,6 +80,7 @@ def run(
         "[modes]\nbiped_probability = 1.0\nresampling_time_s = 60.0\n"
         "[env]\nrandom_initial_episode_step = false\n"
         f"[init]\npitch = [{args.pitch[0]}, {args.pitch[1]}]\n"
+        f'[physics]\nengine = "{engine}"\n'  # the one the checkpoint trained on
     )
     session = open_session(
         address,
@@ -143,10 +145,10 @@ def main() -> None:
         help="also print each reward term's mean per env-step, upright vs head down (both runs)",
     )
     args = parser.parse_args()
-    policy, dims = load_policy(args.checkpoint)
+    policy, dims, engine = load_policy(args.checkpoint)
     with LocalServer() as server:
         for driver in (policy, None):
-            line, terms = run(server.address, driver, dims["obs_dim"], args)
+            line, terms = run(server.address, driver, dims["obs_dim"], args, engine)
             print(line)
             if terms is not None:
                 print(terms.table())

@@ -149,9 +149,11 @@ def probe(
 ) -> str:
     """One run at ``command`` (vx, vy, wz): the line of figures the module docstring lists."""
     vx, vy, wz = command
-    policy, dims = load_policy(checkpoint)
+    policy, dims, engine = load_policy(checkpoint)
+    on_engine = f'[physics]\nengine = "{engine}"\n'  # the one it trained on (decision 0026)
     with LocalServer() as server:
-        config = SessionConfig(num_envs=envs, seed=seed, task_overrides_toml=overrides(vx, vy, wz))
+        task = overrides(vx, vy, wz) + on_engine
+        config = SessionConfig(num_envs=envs, seed=seed, task_overrides_toml=task)
         env = TorchVecEnv(open_session(server.address, config), "cpu")
         at = ObsFields(env.spec)
         history = ObservationHistory(envs, 3, dims["obs_dim"], torch.device("cpu"))

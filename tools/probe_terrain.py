@@ -55,9 +55,7 @@ class Rollout:
         apex: torch.Tensor,
     ) -> None:
         self.distance, self.fell, self.terms = distance, fell, terms
-        self.apex = (
-            apex  # [4] the 90th percentile of each foot sole's height over the terrain
-        )
+        self.apex = apex  # [4] the 90th percentile of each foot sole's height over the terrain
 
 
 def rollout(
@@ -72,11 +70,13 @@ def rollout(
     seed: int,
 ) -> tuple[Rollout, tuple[str, ...]]:
     """Run ``steps`` policy steps (no env survives past its first episode in the counts)."""
-    policy, dims = load_policy(checkpoint)
+    policy, dims, engine = load_policy(checkpoint)
     config = SessionConfig(
         num_envs=envs,
         seed=seed,
-        task_overrides_toml=overrides(mode, vx, steps * DT + 1.0),
+        # On the engine the checkpoint trained on (decision record 0026).
+        task_overrides_toml=overrides(mode, vx, steps * DT + 1.0)
+        + f'[physics]\nengine = "{engine}"\n',
         terrain=terrain,
         terrain_level=level,
     )
@@ -111,18 +111,14 @@ def rollout(
 
 def main() -> None:
     """Parse the command line and print one block per level."""
-    p = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawTextHelpFormatter
-    )
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     p.add_argument("checkpoint", help="model_*.pt")
     p.add_argument("--terrain", default="stairs_up")
     p.add_argument("--levels", type=int, nargs="+", default=[0, 1, 2, 3])
     p.add_argument("--mode", choices=["quad", "biped"], default="quad")
     p.add_argument("--vx", type=float, default=0.5, help="forward command (m/s)")
     p.add_argument("--envs", type=int, default=32)
-    p.add_argument(
-        "--steps", type=int, default=600, help="policy steps (50 per second)"
-    )
+    p.add_argument("--steps", type=int, default=600, help="policy steps (50 per second)")
     p.add_argument("--seed", type=int, default=5)
     p.add_argument("--terms", type=int, default=6, help="reward terms listed per level")
     a = p.parse_args()
@@ -154,8 +150,7 @@ def main() -> None:
             delta = r.terms - flat.terms
             worst = delta.abs().argsort(descending=True)[: a.terms]
             listed = ", ".join(
-                f"{names[i]} {r.terms[i]:+.4f} ({delta[i]:+.4f})"
-                for i in worst.tolist()
+                f"{names[i]} {r.terms[i]:+.4f} ({delta[i]:+.4f})" for i in worst.tolist()
             )
             print(
                 f"{a.terrain} level {level}: walked {walked.mean():+.2f} m "
