@@ -92,6 +92,8 @@ pub struct StepData {
     pub terrain_level: Vec<u32>,
     /// The upright indicator's threshold, when the server reports it.
     pub upright_pitch: Option<f32>,
+    /// [N] the head touched the terrain in this step (None from servers that do not say).
+    pub head_contact: Option<Vec<bool>>,
 }
 
 fn f32s(t: &Option<v1::Tensor>, name: &str) -> Result<Option<Vec<f32>>> {
@@ -141,6 +143,15 @@ impl StepData {
                 None => vec![0; n],
             },
             upright_pitch: r.upright_pitch,
+            head_contact: match &r.head_contact {
+                Some(t) => Some(
+                    t.u8_values("head_contact")?
+                        .iter()
+                        .map(|&x| x != 0)
+                        .collect(),
+                ),
+                None => None,
+            },
             obs,
             labels,
             privileged,
@@ -155,6 +166,11 @@ impl StepData {
             ("truncated", data.truncated.len(), n),
             ("mode", data.mode.len(), n),
             ("terrain_level", data.terrain_level.len(), n),
+            (
+                "head_contact",
+                data.head_contact.as_ref().map_or(n, Vec::len),
+                n,
+            ),
             ("final_obs", data.final_obs.len(), k * dims.obs),
             ("final_labels", data.final_labels.len(), k * dims.labels),
             (

@@ -17,6 +17,7 @@ use crate::gae::bootstrap_time_outs;
 use crate::nets::{self, ActorCritic, Estimator, Mlp, matrix};
 use crate::ppo::{EstimatorLearning, Ppo};
 use crate::rng::Rng;
+use crate::stats::{BipedPoseStats, TerrainLevelStats, env_terrain_types};
 use crate::storage::{Layout, RolloutStorage, Step};
 use crate::{Error, Result};
 
@@ -58,6 +59,8 @@ pub struct Envs {
     pub episode_length_s: f64,
     /// The physics engine the session steps in ("" from a server that does not say).
     pub physics_engine: String,
+    terrain_stats: TerrainLevelStats,
+    biped_pose: BipedPoseStats,
     last: StepData,
     history: ObservationHistory,
     stats: EpisodeStats,
@@ -80,6 +83,8 @@ impl Envs {
         let physics_engine = spec.0.physics_engine.clone();
         Ok(Self {
             physics_engine,
+            terrain_stats: TerrainLevelStats::new(&env_terrain_types(&spec.0.terrain, n)),
+            biped_pose: BipedPoseStats::from_spec(&spec)?,
             history: ObservationHistory::new(&last.obs, history_length, dims.obs),
             stats: EpisodeStats::new(n, reward_terms.len()),
             episode_length_s: f64::from(spec.0.max_episode_steps) * f64::from(spec.0.policy_dt),
@@ -359,6 +364,9 @@ impl Learner {
             }
             reward_sum += next.reward.iter().map(|&r| f64::from(r)).sum::<f64>();
             biped += next.mode.iter().filter(|&&m| m == 1).count() as f64 / n as f64;
+            // The mode each env acted in, and the state the step left it in.
+            envs.biped_pose.add(&envs.last.mode, &next, d.obs, d.labels);
+            envs.terrain_stats.add(&next.terrain_level, &next.mode);
             level += next
                 .terrain_level
                 .iter()
@@ -386,6 +394,8 @@ impl Learner {
             ("terrain_level".into(), level / steps as f64),
             ("biped_share".into(), biped / steps as f64),
         ];
+        out.extend(envs.biped_pose.summary());
+        out.extend(envs.terrain_stats.summary());
         if let Some(pitch) = envs.last.upright_pitch {
             out.push(("curriculum/upright_pitch".into(), f64::from(pitch)));
             self.upright_pitch = Some(pitch);

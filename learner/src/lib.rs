@@ -22,6 +22,7 @@ pub mod rng;
 pub mod run;
 pub mod schedule;
 pub mod server;
+pub mod stats;
 pub mod storage;
 
 /// Errors of the learner.

@@ -90,6 +90,23 @@ fn trains_resumes_and_exports_against_the_real_server() {
     ] {
         assert!(header.iter().any(|c| c == name), "{name} in {header:?}");
     }
+    // The Python learner's columns, in its order: the biped's pose, then the terrain level per
+    // terrain type and per mode. Four legs on flat ground: level 0, and no biped env-step.
+    let at = |name: &str| header.iter().position(|c| c == name).expect(name);
+    assert!(at("biped_share") < at("biped_pose/pitch"));
+    assert!(at("biped_pose/rear_feet_up_share") < at("terrain_level/flat"));
+    assert!(at("terrain_level/flat") < at("terrain_level/quad"));
+    assert!(at("terrain_level/biped") < at("episodes"));
+    assert_eq!(column(&header, &rows, "terrain_level/flat"), [0.0, 0.0]);
+    assert_eq!(column(&header, &rows, "terrain_level/quad"), [0.0, 0.0]);
+    for row in &rows {
+        assert_eq!(row[at("terrain_level/biped")], "", "NaN: no biped env-step");
+        assert_eq!(
+            row[at("biped_pose/upright_share")],
+            "",
+            "NaN: no biped env-step"
+        );
+    }
     assert_eq!(column(&header, &rows, "iteration"), [1.0, 2.0]);
     assert_eq!(column(&header, &rows, "total_env_steps"), [384.0, 768.0]);
     // Rewards came from the server: a standing start earns something per step.
