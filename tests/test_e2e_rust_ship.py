@@ -5,7 +5,9 @@ the real server evaluate the policy, and writes a card that says which learner r
 
 from __future__ import annotations
 
+import csv
 import json
+import math
 import subprocess
 
 import pytest
@@ -44,7 +46,7 @@ def test_a_rust_learner_run_ships_and_the_server_evaluates_it(
     run = tmp_path / "run"
     train = ["train", "--server", server, "--recipe", str(recipe), "--log-dir", str(run)]
     done = subprocess.run(
-        [str(learner_bin), *train, "--seed", "3"],
+        [str(learner_bin), *train, "--seed", "3", "--tensorboard"],
         capture_output=True,
         text=True,
         timeout=600,
@@ -53,6 +55,19 @@ def test_a_rust_learner_run_ships_and_the_server_evaluates_it(
     assert done.returncode == 0, done.stderr[-2000:]
     stage = run / "01_quad"
     assert (stage / "model_1.ckpt").is_file() and (stage / "model_2.ckpt").is_file()
+    # --tensorboard: TensorBoard's own reader finds the CSV's names, step = iteration.
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    (event_file,) = stage.glob("events.out.tfevents.*")
+    events = EventAccumulator(str(event_file))
+    events.Reload()
+    with (stage / "progress.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert set(events.Tags()["scalars"]) == set(rows[0])
+    kl = {e.step: e.value for e in events.Scalars("kl")}
+    assert kl.keys() == {1, 2}
+    for row in rows:
+        assert math.isclose(kl[int(row["iteration"])], float(row["kl"]), rel_tol=1e-5)
     header = read_checkpoint(stage / "model_2.ckpt")
     assert header["iteration"] == 2 and header["total_env_steps"] == 2 * 8 * 24
     assert header["config"]["env"]["num_envs"] == 8

@@ -175,7 +175,7 @@ pub struct RunnerConfig {
     pub seed: u64,
     /// One line per iteration on stderr (the Rust learner always logs one).
     pub quiet: bool,
-    /// Python only; accepted.
+    /// Each iteration's scalars also as TensorBoard events beside `progress.csv`.
     pub tensorboard: bool,
 }
 

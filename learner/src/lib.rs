@@ -24,6 +24,7 @@ pub mod schedule;
 pub mod server;
 pub mod stats;
 pub mod storage;
+pub mod tensorboard;
 
 /// Errors of the learner.
 #[derive(Debug, thiserror::Error)]

@@ -59,6 +59,10 @@ struct TrainArgs {
     /// `ppo.entropy_coef=0.005` or `env.task.physics.engine="rapier"`.
     #[arg(long = "set", value_name = "SECTION.KEY=VALUE")]
     sets: Vec<String>,
+    /// Also write each iteration's scalars as TensorBoard events beside each stage's
+    /// progress.csv (`tensorboard --logdir LOG_DIR`).
+    #[arg(long)]
+    tensorboard: bool,
     /// The run's folder: stages, progress.csv, checkpoints, final.ckpt, policy.onnx. A folder
     /// holding a run of the same recipe is resumed.
     #[arg(long)]
@@ -83,6 +87,7 @@ fn train(args: TrainArgs) -> Result<()> {
         num_envs: args.num_envs,
         seed: args.seed,
         sets: args.sets,
+        tensorboard: args.tensorboard,
     };
     let mut local = None;
     let address = match args.server {

@@ -22,6 +22,7 @@ use crate::log::ProgressLog;
 use crate::milestone::{self, load_milestone, milestones_file};
 use crate::onnx::export_policy;
 use crate::recipe::{Recipe, Stage, Start};
+use crate::tensorboard::EventWriter;
 use crate::{Error, Result};
 
 const RECIPE_FILE: &str = "recipe.toml";
@@ -41,6 +42,9 @@ pub struct Overrides {
     pub seed: Option<u64>,
     /// `--set` lines (`section.key=value`), merged into every stage before the above.
     pub sets: Vec<String>,
+    /// `runner.tensorboard` in every stage (how a run is watched: not part of what it is, so a
+    /// resume may differ).
+    pub tensorboard: bool,
 }
 
 impl Overrides {
@@ -62,6 +66,9 @@ impl Overrides {
             }
             if let Some(n) = self.num_envs {
                 s.config.env.num_envs = n;
+            }
+            if self.tensorboard {
+                s.config.runner.tensorboard = true;
             }
             if let Some(seed) = self.seed {
                 s.config.env.seed = seed;
@@ -293,6 +300,11 @@ async fn train_stage(
         learner.physics_engine = envs.physics_engine.clone();
     }
     let mut log = ProgressLog::open(stage_dir)?;
+    let mut events = if learner.cfg.runner.tensorboard {
+        Some(EventWriter::create(stage_dir)?)
+    } else {
+        None
+    };
     let start_iteration = if resuming {
         let ck = source.as_ref().expect("a resumed stage has its checkpoint");
         learner.load(ck, true)?;
@@ -356,6 +368,9 @@ async fn train_stage(
     while learner.iteration < target {
         let scalars = learner.iterate(envs).await?;
         log.log(&scalars)?;
+        if let Some(events) = events.as_mut() {
+            events.log(learner.iteration, &scalars)?;
+        }
         tracing::info!("{}", progress_line(&scalars));
         let check = milestone
             .as_ref()

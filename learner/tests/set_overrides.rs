@@ -9,6 +9,7 @@ fn overrides(sets: &[&str]) -> Overrides {
         num_envs: Some(16),
         seed: None,
         sets: sets.iter().map(|s| s.to_string()).collect(),
+        tensorboard: false,
     }
 }
 

@@ -7,6 +7,8 @@
 
 use std::path::{Path, PathBuf};
 
+use prost::Message;
+
 use unigait_client::{Client, v1};
 use unigait_learner::checkpoint::Checkpoint;
 use unigait_learner::config::TrainConfig;
@@ -64,6 +66,7 @@ fn trains_resumes_and_exports_against_the_real_server() {
         num_envs: Some(ENVS),
         seed: Some(3),
         sets: Vec::new(),
+        tensorboard: true,
     };
 
     // Two iterations.
@@ -108,6 +111,39 @@ fn trains_resumes_and_exports_against_the_real_server() {
         );
     }
     assert_eq!(column(&header, &rows, "iteration"), [1.0, 2.0]);
+    // --tensorboard: the same names and values, step = iteration, in one event file.
+    let files: Vec<PathBuf> = std::fs::read_dir(&stage)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.to_string_lossy().contains("events.out.tfevents."))
+        .collect();
+    assert_eq!(files.len(), 1, "{files:?}");
+    let bytes = std::fs::read(&files[0]).unwrap();
+    let mut events = Vec::new();
+    let mut at = 0;
+    while at < bytes.len() {
+        let len = u64::from_le_bytes(bytes[at..at + 8].try_into().unwrap()) as usize;
+        let payload = &bytes[at + 12..at + 12 + len];
+        events.push(unigait_learner::tensorboard::Event::decode(payload).unwrap());
+        at += 16 + len;
+    }
+    assert_eq!(events.iter().map(|e| e.step).collect::<Vec<_>>(), [0, 1, 2]);
+    let kl = column(&header, &rows, "kl");
+    for (event, kl) in events[1..].iter().zip(kl) {
+        let values = &event.summary.as_ref().unwrap().value;
+        let tags: Vec<&str> = values.iter().map(|v| v.tag.as_str()).collect();
+        assert_eq!(tags, header.iter().map(String::as_str).collect::<Vec<_>>());
+        let logged = values
+            .iter()
+            .find(|v| v.tag == "kl")
+            .unwrap()
+            .simple_value
+            .unwrap();
+        assert!(
+            (f64::from(logged) - kl).abs() <= 1e-5 * kl.abs().max(1e-6),
+            "{logged} {kl}"
+        );
+    }
     assert_eq!(column(&header, &rows, "total_env_steps"), [384.0, 768.0]);
     // Rewards came from the server: a standing start earns something per step.
     let reward = column(&header, &rows, "mean_step_reward");
