@@ -6,7 +6,7 @@
 #   learner/examples/bench_throughput.sh [OUT_DIR]      (default /tmp/unigait-bench-throughput)
 # Prints the median env_steps_per_s of iterations 2..N of each progress.csv, and the wall time.
 # LEARNERS (default "rust python") picks which run; RUST_BIN the learner binary to time; ENGINE
-# (default: the task config's) the physics engine of the sessions, "rapier" or "articulated".
+# (default: the recipe's, rapier) the physics engine of the sessions, "rapier" or "articulated".
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 out="${1:-/tmp/unigait-bench-throughput}"
@@ -16,12 +16,12 @@ rust_bin="${RUST_BIN:-target/release/unigait-learner}"
 rm -rf "$out"
 mkdir -p "$out"
 recipe="$out/quad_flat_bench.toml"
-# The shipped recipe, its stop rule shortened and its milestone check dropped.
+# The shipped recipe, its stop rule shortened, its milestone check dropped, its engine ENGINE.
+engine="${ENGINE:-rapier}"
 sed -e "s/^iterations = .*/iterations = $iterations/" -e '/^milestone = "M1"$/d' \
-    -e '/^check_every/d' assets/recipes/quad_flat.toml >"$recipe"
-if [ -n "${ENGINE:-}" ]; then
-    printf '\n[stages.task.physics]\nengine = "%s"\n' "$ENGINE" >>"$recipe"
-fi
+    -e '/^check_every/d' -e "s/^engine = .*/engine = \"$engine\"/" \
+    assets/recipes/quad_flat.toml >"$recipe"
+grep -q "^engine = \"$engine\"" "$recipe"
 export UNIGAIT_SERVER_BIN="$PWD/target/release/unigait-server"
 median() {
     .venv/bin/python - "$1" <<'EOF'
