@@ -98,7 +98,7 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     assert settle.stop.milestone == "M2" and settle.stop.validation_seed == 2000
     assert list(settle.config.policy.actor_hidden_dims) == [256, 128, 64]
     # The terrain recipe inherits the flat recipe's last stage and says what it changes.
-    terrain, explore, stairs, clearance = load_recipe("unified_terrain").stages
+    terrain, explore, stairs, clearance, articulated = load_recipe("unified_terrain").stages
     assert terrain.config.policy == settle.config.policy
     assert (
         terrain.config.env.task["rewards"]["weights"]
@@ -119,6 +119,11 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     assert clearance.config.env.task["rewards"]["foot_clearance_sharpness"] == 400.0
     assert "foot_clearance_sharpness" not in stairs.config.env.task["rewards"]
     assert clearance.config.ppo == stairs.config.ppo and clearance.carry == "all"
+    # The fifth moves it to the articulated engine and keeps the rest.
+    assert terrain.config.env.task["physics"]["engine"] == "rapier"
+    assert articulated.config.env.task["physics"]["engine"] == "articulated"
+    moved = articulated.config.env.task
+    assert {**moved, "physics": clearance.config.env.task["physics"]} == clearance.config.env.task
     # --set applies on top of every stage.
     small = load_recipe("unified_flat", ["env.num_envs=8"])
     assert [s.config.env.num_envs for s in small.stages] == [8, 8, 8]
