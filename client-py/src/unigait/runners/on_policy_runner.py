@@ -20,6 +20,7 @@ from unigait.algorithms import PPO, EstimatorLearning
 from unigait.config import TrainConfig, apply, checkpoint_engine, same_task
 from unigait.env import BipedPoseStats, EpisodeStats, ObservationHistory, TorchStep, TorchVecEnv
 from unigait.env.biped_pose import BIPED_MODE
+from unigait.env.terrain_stats import TerrainLevelStats
 from unigait.live_view import RobotDrawer
 from unigait.modules import ActorCritic, Estimator, EstimatorActorPolicy
 from unigait.storage import RolloutStorage, bootstrap_time_outs
@@ -178,8 +179,6 @@ class OnPolicyRunner:
 
     def rollout(self) -> dict[str, float]:
         """Collect one rollout into the storage and compute returns; return rollout statistics."""
-        from unigait.env.terrain_stats import TerrainLevelStats
-
         env, ac, timers = self.env, self.actor_critic, self.timers
         spec = env.spec
         self.storage.clear()

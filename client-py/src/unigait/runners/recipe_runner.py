@@ -27,6 +27,7 @@ from unigait.config import (
     session_config,
 )
 from unigait.env import TorchVecEnv
+from unigait.export import export_onnx
 from unigait.live_view import LiveView, ViewTarget, robot_drawer
 from unigait.milestones import milestone as load_milestone
 from unigait.provenance import git_commit
@@ -114,8 +115,6 @@ def evaluate_milestone(
     Returns:
         Whether every criterion is met, and the record (``validation.jsonl``'s row).
     """
-    from unigait.export import export_onnx
-
     target = load_milestone(name)
     evals: dict[str, dict[str, float]] = {}
     with tempfile.TemporaryDirectory() as tmp:
