@@ -13,7 +13,7 @@ use rapier3d::math::{Pose, Rotation, Vec3};
 use unigait_sim::physics::{PhysicsParams, RobotPhysicalParams, RobotState, RobotWorld};
 use unigait_sim::prelude::*;
 use unigait_sim::terrain::{
-    EpisodeDistance, TerrainCollider, TerrainKind, TerrainSpec, TerrainType,
+    EpisodeDistance, LevelRule, TerrainCollider, TerrainKind, TerrainSpec, TerrainType,
 };
 
 /// A curriculum spec whose deterministic spawn tiles cover levels `0..=max_init_level`.
@@ -242,14 +242,22 @@ fn grid_queries_through_the_terrain() {
 #[test]
 fn curriculum_levels_move_by_the_rule() {
     let mut rng = ChaCha8Rng::seed_from_u64(0);
-    let ep = |walked, commanded| EpisodeDistance { walked, commanded };
+    let ep = |walked, commanded| EpisodeDistance {
+        walked,
+        commanded,
+        commanded_biped: 0.0,
+    };
+    let rule = LevelRule::default();
     let grid = Terrain::from_spec(&curriculum(5), 0).expect("terrain");
-    assert_eq!(grid.next_level(4, ep(7.5, 10.0), &mut rng), 5);
-    assert_eq!(grid.next_level(4, ep(4.5, 10.0), &mut rng), 3);
-    assert_eq!(grid.next_level(4, ep(3.0, 5.0), &mut rng), 4);
-    assert_eq!(grid.next_level(0, ep(0.0, 10.0), &mut rng), 0);
-    assert!(grid.next_level(9, ep(5.0, 5.0), &mut rng) < 10);
-    assert_eq!(Terrain::Flat.next_level(4, ep(7.5, 10.0), &mut rng), 4);
+    assert_eq!(grid.next_level(4, ep(7.5, 10.0), &rule, &mut rng), 5);
+    assert_eq!(grid.next_level(4, ep(4.5, 10.0), &rule, &mut rng), 3);
+    assert_eq!(grid.next_level(4, ep(3.0, 5.0), &rule, &mut rng), 4);
+    assert_eq!(grid.next_level(0, ep(0.0, 10.0), &rule, &mut rng), 0);
+    assert!(grid.next_level(9, ep(5.0, 5.0), &rule, &mut rng) < 10);
+    assert_eq!(
+        Terrain::Flat.next_level(4, ep(7.5, 10.0), &rule, &mut rng),
+        4
+    );
     let pinned = TerrainSpec {
         kind: TerrainKind::Pinned {
             terrain_type: TerrainType::StairsUp,
@@ -258,7 +266,7 @@ fn curriculum_levels_move_by_the_rule() {
         ..TerrainSpec::default()
     };
     let pinned = Terrain::from_spec(&pinned, 0).expect("terrain");
-    assert_eq!(pinned.next_level(5, ep(7.5, 10.0), &mut rng), 5);
+    assert_eq!(pinned.next_level(5, ep(7.5, 10.0), &rule, &mut rng), 5);
     assert_eq!(pinned.initial_tile(0, 10, &mut rng), (5, 4));
 }
 
@@ -313,6 +321,60 @@ fn a_standing_policy_is_never_promoted() {
     );
     assert_eq!(up, 0);
     assert!(down > 0);
+}
+
+/// The task config's `[terrain_curriculum]` is the rule the envs move by: with both demotion
+/// lines at 0 only an env that drifted against its command (walked < 0) goes down, where the
+/// default lines send most standing envs down. Bad values are refused, named by their field.
+#[test]
+fn the_task_configs_curriculum_rule_moves_the_envs() {
+    let n = 16;
+    let demoted = |rule: &str| {
+        let config = TaskConfig::embedded_default()
+            .with_overrides(&format!(
+                "[env]\nrandom_initial_episode_step = false\n{rule}"
+            ))
+            .expect("config");
+        let grid = Terrain::from_spec(&curriculum(5), 1).expect("terrain");
+        let mut env = batch_on(grid, config, n, 1);
+        let start: Vec<u32> = (0..n).map(|i| env.env_state(i).terrain_level).collect();
+        let zeros = vec![0.0; n * NUM_JOINTS];
+        let mut after: Vec<Option<u32>> = vec![None; n];
+        for _ in 0..900 {
+            let out = env.step(&zeros).expect("step");
+            let ended: Vec<bool> = (0..n)
+                .map(|i| out.terminated[i] != 0 || out.truncated[i] != 0)
+                .collect();
+            for i in 0..n {
+                if ended[i] && after[i].is_none() {
+                    after[i] = Some(env.env_state(i).terrain_level);
+                }
+            }
+        }
+        assert!(after.iter().all(Option::is_some), "every env ends in 18 s");
+        (0..n).filter(|&i| after[i] < Some(start[i])).count()
+    };
+    let by_default = demoted("");
+    let lenient = demoted("[terrain_curriculum]\ndemote_share = 0.0\ndemote_share_biped = 0.0");
+    println!("standing, demoted of {n}: {by_default} by default, {lenient} with the lines at 0");
+    assert!(lenient < by_default, "{lenient} !< {by_default}");
+    for (text, field) in [
+        (
+            "[terrain_curriculum]\npromote_share_biped = 1.5",
+            "promote_share_biped",
+        ),
+        (
+            "[terrain_curriculum]\ndemote_share_biped = 0.9",
+            "demote_share_biped",
+        ),
+        ("[terrain_curriculum]\npromote_line = 0.5", "promote_line"),
+    ] {
+        let err = TaskConfig::embedded_default()
+            .with_overrides(text)
+            .expect_err(text)
+            .to_string();
+        assert!(err.contains(field), "{text}: {err}");
+    }
 }
 
 /// The terrain called `name`: `flat`, `trimesh` or `heightfield:<subdivisions>`, on a

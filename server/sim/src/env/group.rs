@@ -197,9 +197,12 @@ impl EnvGroup {
                     // The curriculum judges the episode that just ended by what the robot
                     // walked along its commands against what they asked for (both integrated
                     // per step in `step_task`; see terrain::curriculum).
-                    env.terrain_level =
-                        sh.terrain
-                            .next_level(env.terrain_level, env.distance, &mut env.rng);
+                    env.terrain_level = sh.terrain.next_level(
+                        env.terrain_level,
+                        env.distance,
+                        &cfg.terrain_curriculum,
+                        &mut env.rng,
+                    );
                 }
                 let o = grid.tile_origin(env.terrain_level, env.terrain_type);
                 (o.x, o.y)
@@ -370,10 +373,11 @@ impl EnvGroup {
                 let v = to_heading_frame(heading_direction(s.base_rot), s.base_linvel);
                 let command = [env.command[0], env.command[1]];
                 let dt = cfg.policy_dt();
-                env.distance.add_step(command, [v.x, v.y], dt);
+                let biped = env.mode == TaskMode::Biped;
+                env.distance.add_step(command, [v.x, v.y], dt, biped);
                 if terminated {
                     let left = ctx.max_episode_steps.saturating_sub(env.episode_step);
-                    env.distance.add_unlived(command, left as f32 * dt);
+                    env.distance.add_unlived(command, left as f32 * dt, biped);
                 }
             }
             let inputs = reward_inputs(

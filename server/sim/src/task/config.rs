@@ -7,6 +7,7 @@ use serde::{Deserialize, Serialize};
 use super::reward_terms::RewardTerm;
 use crate::error::SimError;
 use crate::physics::PhysicsParams;
+use crate::terrain::LevelRule;
 
 /// A closed range `[lo, hi]` drawn uniformly.
 pub type Range = [f32; 2];
@@ -33,6 +34,8 @@ pub struct TaskConfig {
     pub rewards: RewardParams,
     /// Observation noise.
     pub noise: NoiseParams,
+    /// When the terrain curriculum moves an env up or down a level (a curriculum terrain only).
+    pub terrain_curriculum: LevelRule,
 }
 
 /// Episode, control and batching.

@@ -42,6 +42,7 @@ fn check_count(field: &str, v: usize, lo: usize, hi: usize) -> Result<(), SimErr
 impl TaskConfig {
     /// Check every value against its allowed range.
     pub fn validate(&self) -> Result<(), SimError> {
+        self.terrain_curriculum.validate()?;
         let p = &self.physics;
         check("physics.dt", p.dt, 1e-4, 0.02)?;
         check_count("physics.solver_iterations", p.solver_iterations, 1, 64)?;

@@ -16,6 +16,8 @@
 
 use rand::{Rng, RngExt};
 
+use crate::error::SimError;
+
 /// The grid column of env `env_index` of `num_envs` with `num_columns` columns: envs fill the
 /// columns in contiguous blocks, as legged_gym (`floor(index / (num_envs / num_columns))`).
 pub fn initial_column(env_index: usize, num_envs: usize, num_columns: u32) -> u32 {
@@ -32,45 +34,115 @@ pub struct EpisodeDistance {
     pub walked: f32,
     /// Distance the commands asked for (m): the integral of |commanded xy velocity|.
     pub commanded: f32,
+    /// The part of `commanded` asked for in biped mode (m).
+    pub commanded_biped: f32,
 }
 
 impl EpisodeDistance {
     /// Add one step of `dt` seconds under the xy command `command` (m/s, heading frame) while
-    /// the base moved at `velocity` (m/s, same frame). A zero command adds nothing.
-    pub fn add_step(&mut self, command: [f32; 2], velocity: [f32; 2], dt: f32) {
+    /// the base moved at `velocity` (m/s, same frame), in biped mode or not. A zero command
+    /// adds nothing.
+    pub fn add_step(&mut self, command: [f32; 2], velocity: [f32; 2], dt: f32, biped: bool) {
         let speed = command[0].hypot(command[1]);
         if speed > 0.0 && speed.is_finite() && velocity.iter().all(|v| v.is_finite()) {
-            self.commanded += speed * dt;
+            self.add_commanded(speed * dt, biped);
             self.walked += (velocity[0] * command[0] + velocity[1] * command[1]) / speed * dt;
         }
     }
 
     /// An episode that ended early (a fall) is judged on its full length, as legged_gym's
     /// |command| x episode length: the `seconds` it did not live count as commanded at the last
-    /// command `command` and not walked.
-    pub fn add_unlived(&mut self, command: [f32; 2], seconds: f32) {
+    /// command `command` (in the mode it fell in) and not walked.
+    pub fn add_unlived(&mut self, command: [f32; 2], seconds: f32, biped: bool) {
         let speed = command[0].hypot(command[1]);
         if speed.is_finite() && seconds > 0.0 {
-            self.commanded += speed * seconds;
+            self.add_commanded(speed * seconds, biped);
+        }
+    }
+
+    fn add_commanded(&mut self, distance: f32, biped: bool) {
+        self.commanded += distance;
+        if biped {
+            self.commanded_biped += distance;
+        }
+    }
+
+    /// `quad_share` of the distance asked for on four legs plus `biped_share` of the distance
+    /// asked for on two.
+    pub fn line(&self, quad_share: f32, biped_share: f32) -> f32 {
+        quad_share * (self.commanded - self.commanded_biped) + biped_share * self.commanded_biped
+    }
+}
+
+/// When an episode moves its env up or down a level: the task config's `[terrain_curriculum]`
+/// (decision records 0022 and 0027).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LevelRule {
+    /// Up when walked > this x the distance commanded on four legs (plus the biped's share of
+    /// the distance commanded on two) ...
+    pub promote_share: f32,
+    /// ... and walked >= this (m).
+    pub promote_min_distance: f32,
+    /// Down when walked < this x the distance commanded on four legs (plus the biped's share
+    /// of the distance commanded on two), and not up.
+    pub demote_share: f32,
+    /// `promote_share` for the distance commanded in biped mode.
+    pub promote_share_biped: f32,
+    /// `demote_share` for the distance commanded in biped mode.
+    pub demote_share_biped: f32,
+}
+
+impl Default for LevelRule {
+    fn default() -> Self {
+        Self {
+            // 0.7: the shipped flat policy tracks a biped's 0.4 m/s command ~0.1 m/s short
+            // (~75 %), so it promotes on terrain it walks as on flat ground; one that slows
+            // below 70 % stays, below 50 % (demote_share) goes down.
+            promote_share: 0.7,
+            // 2 m: past the 1.5 m from the spawn to the platform's edge, i.e. onto the tile's
+            // terrain; a biped at a typical 0.3 m/s covers it in 7 s of its 18 s episode.
+            promote_min_distance: 2.0,
+            // 0.5, as legged_gym.
+            demote_share: 0.5,
+            // The same lines on two legs unless a run says otherwise (decision record 0027).
+            promote_share_biped: 0.7,
+            demote_share_biped: 0.5,
         }
     }
 }
 
-/// When an episode moves its env up or down a level (a [`crate::terrain::TerrainSpec`]'s
-/// `promote_share`, `promote_min_distance` and `demote_share`).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct LevelRule {
-    /// Up when walked > this x commanded ...
-    pub promote_share: f32,
-    /// ... and walked >= this (m).
-    pub promote_min_distance: f32,
-    /// Down when walked < this x commanded (and not up).
-    pub demote_share: f32,
+impl LevelRule {
+    /// Shares in [0, 1], demotion below promotion in each mode, a distance in [0, 1000] m.
+    pub fn validate(&self) -> Result<(), SimError> {
+        let check = |field: &str, value: f32, hi: f32| {
+            if value.is_finite() && (0.0..=hi).contains(&value) {
+                Ok(())
+            } else {
+                Err(SimError::invalid(
+                    format!("terrain_curriculum.{field}"),
+                    value,
+                    format!("allowed range [0, {hi}]"),
+                ))
+            }
+        };
+        check("promote_share", self.promote_share, 1.0)?;
+        check("promote_share_biped", self.promote_share_biped, 1.0)?;
+        // Demoting above the promotion share would move an env both ways.
+        check("demote_share", self.demote_share, self.promote_share)?;
+        check(
+            "demote_share_biped",
+            self.demote_share_biped,
+            self.promote_share_biped,
+        )?;
+        check("promote_min_distance", self.promote_min_distance, 1000.0)
+    }
 }
 
-/// The level after an episode: up one when the env walked more than `promote_share` of the
-/// commanded distance and at least `promote_min_distance`; down one when it walked less than
-/// `demote_share` of it and is not moving up (legged_gym's demotion). Going down stops at level
+/// The level after an episode: up one when the env walked more than its promotion line
+/// (`promote_share` of the distance commanded on four legs plus `promote_share_biped` of the
+/// distance commanded on two) and at least `promote_min_distance`; down one when it walked less
+/// than its demotion line and is not moving up (legged_gym's demotion). Going down stops at level
 /// 0; going past the top level sends the env to a level drawn uniformly from `0..num_levels`, so
 /// solved envs keep visiting every level (legged_gym). Why relative to the commands:
 /// docs/src/decisions/0022-command-relative-promotion.md.
@@ -81,9 +153,10 @@ pub fn next_level(
     num_levels: u32,
     rng: &mut impl Rng,
 ) -> u32 {
-    let EpisodeDistance { walked, commanded } = episode;
-    let up = walked > rule.promote_share * commanded && walked >= rule.promote_min_distance;
-    let down = !up && walked < rule.demote_share * commanded;
+    let walked = episode.walked;
+    let up = walked > episode.line(rule.promote_share, rule.promote_share_biped)
+        && walked >= rule.promote_min_distance;
+    let down = !up && walked < episode.line(rule.demote_share, rule.demote_share_biped);
     if up {
         let next = current.saturating_add(1);
         if next >= num_levels {

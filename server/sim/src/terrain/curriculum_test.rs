@@ -10,6 +10,8 @@ const RULE: LevelRule = LevelRule {
     promote_share: 0.7,
     promote_min_distance: 2.0,
     demote_share: 0.5,
+    promote_share_biped: 0.7,
+    demote_share_biped: 0.5,
 };
 
 const DT: f32 = 0.02;
@@ -20,7 +22,11 @@ fn level_after(current: u32, walked: f32, commanded: f32) -> u32 {
     let mut rng = ChaCha8Rng::seed_from_u64(0);
     next_level(
         current,
-        EpisodeDistance { walked, commanded },
+        EpisodeDistance {
+            walked,
+            commanded,
+            commanded_biped: 0.0,
+        },
         &RULE,
         10,
         &mut rng,
@@ -30,7 +36,7 @@ fn level_after(current: u32, walked: f32, commanded: f32) -> u32 {
 /// `steps` steps of `command` walked at `velocity`.
 fn walk(d: &mut EpisodeDistance, steps: usize, command: [f32; 2], velocity: [f32; 2]) {
     for _ in 0..steps {
-        d.add_step(command, velocity, DT);
+        d.add_step(command, velocity, DT, false);
     }
 }
 
@@ -100,7 +106,7 @@ fn a_fall_is_judged_on_the_full_episode() {
     let mut d = EpisodeDistance::default();
     walk(&mut d, 150, [0.4, 0.0], [0.4, 0.0]);
     assert_eq!(level_after(3, d.walked, d.commanded), 3);
-    d.add_unlived([0.4, 0.0], 15.0);
+    d.add_unlived([0.4, 0.0], 15.0, false);
     assert!((d.commanded - 7.2).abs() < 1e-3);
     assert_eq!(level_after(3, d.walked, d.commanded), 2);
 }
@@ -111,6 +117,7 @@ fn passing_the_top_level_sends_to_a_random_level() {
     let up = EpisodeDistance {
         walked: 5.0,
         commanded: 5.0,
+        commanded_biped: 0.0,
     };
     let mut seen = [false; 10];
     for _ in 0..500 {
@@ -131,4 +138,93 @@ fn columns_are_filled_in_blocks() {
     let few: Vec<u32> = (0..3).map(|i| initial_column(i, 3, 7)).collect();
     assert_eq!(few, [0, 2, 4]);
     assert_eq!(initial_column(99, 3, 7), 4);
+}
+
+/// The biped's lines: 0.6 to move up, 0.3 to move down, on the distance asked for on two legs.
+const BIPED_RULE: LevelRule = LevelRule {
+    promote_share_biped: 0.6,
+    demote_share_biped: 0.3,
+    ..RULE
+};
+
+fn level_under(rule: &LevelRule, current: u32, d: EpisodeDistance) -> u32 {
+    next_level(current, d, rule, 10, &mut ChaCha8Rng::seed_from_u64(0))
+}
+
+#[test]
+fn each_mode_is_judged_against_its_own_line() {
+    // Two legs for 18 s at 65 % of a 0.4 m/s command (as the terrain run's biped on flat
+    // ground): 4.68 m of 7.2 m. One line for both modes keeps it where it is; the biped's own
+    // line (0.6) moves it up.
+    let mut d = EpisodeDistance::default();
+    for _ in 0..EPISODE {
+        d.add_step([0.4, 0.0], [0.26, 0.0], DT, true);
+    }
+    assert!((d.commanded_biped - 7.2).abs() < 1e-3 && (d.commanded - 7.2).abs() < 1e-3);
+    assert!((d.walked - 4.68).abs() < 1e-3, "{d:?}");
+    assert_eq!(level_under(&RULE, 3, d), 3);
+    assert_eq!(level_under(&BIPED_RULE, 3, d), 4);
+    // At 40 % (2.88 m): down under one line, kept above the biped's 0.3.
+    let slow = EpisodeDistance { walked: 2.88, ..d };
+    assert_eq!(level_under(&RULE, 3, slow), 2);
+    assert_eq!(level_under(&BIPED_RULE, 3, slow), 3);
+    // Mixed: 6 s on four legs at 1 m/s walking 4.5 m (75 %), then 12 s on two at 0.4 m/s walking
+    // 2.9 m (60 %): 7.4 m of 10.8 m (69 %) stays under one line; the per-mode line is
+    // 0.7 x 6 + 0.6 x 4.8 = 7.08 m, so it moves up.
+    let mut d = EpisodeDistance::default();
+    for _ in 0..300 {
+        d.add_step([1.0, 0.0], [0.75, 0.0], DT, false);
+    }
+    for _ in 0..600 {
+        d.add_step([0.4, 0.0], [0.4 * 2.9 / 4.8, 0.0], DT, true);
+    }
+    assert!((d.commanded - 10.8).abs() < 1e-3 && (d.commanded_biped - 4.8).abs() < 1e-3);
+    assert!((d.walked - 7.4).abs() < 1e-3, "{d:?}");
+    assert!((d.line(0.7, 0.6) - 7.08).abs() < 1e-3);
+    assert_eq!(level_under(&RULE, 3, d), 3);
+    assert_eq!(level_under(&BIPED_RULE, 3, d), 4);
+    // A fall on two legs counts the rest of the episode as asked of the biped.
+    let mut d = EpisodeDistance::default();
+    d.add_unlived([0.3, 0.4], 10.0, true);
+    assert!((d.commanded_biped - 5.0).abs() < 1e-4 && d.walked == 0.0);
+}
+
+#[test]
+fn the_rule_is_checked_field_by_field() {
+    LevelRule::default().validate().expect("the default");
+    BIPED_RULE.validate().expect("the biped's own lines");
+    for (rule, field) in [
+        (
+            LevelRule {
+                promote_share_biped: 1.5,
+                ..RULE
+            },
+            "terrain_curriculum.promote_share_biped",
+        ),
+        // Demoting above the promotion line would move an env both ways.
+        (
+            LevelRule {
+                demote_share_biped: 0.8,
+                ..RULE
+            },
+            "terrain_curriculum.demote_share_biped",
+        ),
+        (
+            LevelRule {
+                demote_share: 0.8,
+                ..RULE
+            },
+            "terrain_curriculum.demote_share",
+        ),
+        (
+            LevelRule {
+                promote_min_distance: -1.0,
+                ..RULE
+            },
+            "terrain_curriculum.promote_min_distance",
+        ),
+    ] {
+        let err = rule.validate().expect_err(field).to_string();
+        assert!(err.contains(field), "{err}");
+    }
 }

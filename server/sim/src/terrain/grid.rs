@@ -223,23 +223,20 @@ impl TerrainGrid {
     }
 
     /// The level after `episode` (what the env walked against what its commands asked for):
-    /// [`curriculum::next_level`] with the spec's rule for a curriculum, unchanged for a pinned
-    /// or flat kind.
-    pub fn next_level(&self, current: u32, episode: EpisodeDistance, rng: &mut impl Rng) -> u32 {
+    /// [`curriculum::next_level`] with `rule` for a curriculum, unchanged for a pinned or flat
+    /// kind.
+    pub fn next_level(
+        &self,
+        current: u32,
+        episode: EpisodeDistance,
+        rule: &LevelRule,
+        rng: &mut impl Rng,
+    ) -> u32 {
         match self.spec.kind {
             TerrainKind::Curriculum { .. } => {
-                curriculum::next_level(current, episode, &self.level_rule(), self.num_levels(), rng)
+                curriculum::next_level(current, episode, rule, self.num_levels(), rng)
             }
             TerrainKind::Flat | TerrainKind::Pinned { .. } => current,
-        }
-    }
-
-    /// The spec's promotion and demotion thresholds.
-    pub fn level_rule(&self) -> LevelRule {
-        LevelRule {
-            promote_share: self.spec.promote_share,
-            promote_min_distance: self.spec.promote_min_distance,
-            demote_share: self.spec.demote_share,
         }
     }
 }

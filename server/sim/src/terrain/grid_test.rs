@@ -6,7 +6,11 @@ use rand_chacha::ChaCha8Rng;
 use super::*;
 
 fn walked(walked: f32, commanded: f32) -> EpisodeDistance {
-    EpisodeDistance { walked, commanded }
+    EpisodeDistance {
+        walked,
+        commanded,
+        commanded_biped: 0.0,
+    }
 }
 
 fn grid(kind: TerrainKind) -> TerrainGrid {
@@ -77,8 +81,14 @@ fn pinned_envs_stay_on_their_tile() {
     // Stairs up are columns 4-10 of the default grid: the first one.
     assert_eq!(g.initial_tile(17, 100, &mut rng), (5, 4));
     assert_eq!(g.deterministic_tile(17, 100), (5, 4));
-    assert_eq!(g.next_level(5, walked(100.0, 10.0), &mut rng), 5);
-    assert_eq!(g.next_level(5, walked(0.0, 100.0), &mut rng), 5);
+    assert_eq!(
+        g.next_level(5, walked(100.0, 10.0), &LevelRule::default(), &mut rng),
+        5
+    );
+    assert_eq!(
+        g.next_level(5, walked(0.0, 100.0), &LevelRule::default(), &mut rng),
+        5
+    );
 }
 
 #[test]
@@ -86,11 +96,23 @@ fn curriculum_grids_move_levels_pinned_and_flat_do_not() {
     let mut rng = ChaCha8Rng::seed_from_u64(0);
     let g = grid(TerrainKind::Curriculum { max_init_level: 5 });
     // The spec's default rule: up above 70 % and 2 m, down below 50 %.
-    assert_eq!(g.next_level(3, walked(7.5, 10.0), &mut rng), 4);
-    assert_eq!(g.next_level(3, walked(6.0, 10.0), &mut rng), 3);
-    assert_eq!(g.next_level(3, walked(1.0, 10.0), &mut rng), 2);
+    assert_eq!(
+        g.next_level(3, walked(7.5, 10.0), &LevelRule::default(), &mut rng),
+        4
+    );
+    assert_eq!(
+        g.next_level(3, walked(6.0, 10.0), &LevelRule::default(), &mut rng),
+        3
+    );
+    assert_eq!(
+        g.next_level(3, walked(1.0, 10.0), &LevelRule::default(), &mut rng),
+        2
+    );
     let flat = grid(TerrainKind::Flat);
-    assert_eq!(flat.next_level(3, walked(7.5, 10.0), &mut rng), 3);
+    assert_eq!(
+        flat.next_level(3, walked(7.5, 10.0), &LevelRule::default(), &mut rng),
+        3
+    );
     assert_eq!(flat.initial_tile(3, 10, &mut rng), (0, 0));
 }
 

@@ -150,15 +150,6 @@ pub struct TerrainSpec {
     pub rough_noise_spacing: f32,
     /// Collider representation.
     pub collider: TerrainCollider,
-    /// Promotion: an env moves up a level when it walked more than this share of the distance
-    /// its commands asked for (see [`crate::terrain::next_level`]).
-    pub promote_share: f32,
-    /// Promotion also needs at least this much walked (m), so that an episode of standing
-    /// commands, or one cut short after a few steps, does not promote.
-    pub promote_min_distance: f32,
-    /// Demotion: an env moves down a level when it walked less than this share of the commanded
-    /// distance (legged_gym: 0.5).
-    pub demote_share: f32,
 }
 
 /// The default grid columns: legged_gym's `terrain_proportions` [0.1, 0.1, 0.35, 0.25, 0.2]
@@ -229,15 +220,6 @@ impl Default for TerrainSpec {
             rough_noise_spacing: 0.2,
             // Triangle mesh with vertical step faces.
             collider: TerrainCollider::Trimesh,
-            // 0.7: the shipped flat policy tracks a biped's 0.4 m/s command ~0.1 m/s short
-            // (~75 %), so it promotes on terrain it walks as on flat ground; one that slows
-            // below 70 % stays, below 50 % (demote_share) goes down.
-            promote_share: 0.7,
-            // 2 m: past the 1.5 m from the spawn to the platform's edge, i.e. onto the tile's
-            // terrain; a biped at a typical 0.3 m/s covers it in 7 s of its 18 s episode.
-            promote_min_distance: 2.0,
-            // 0.5, as legged_gym.
-            demote_share: 0.5,
         }
     }
 }
@@ -393,14 +375,6 @@ impl TerrainSpec {
             self.rough_noise_spacing,
             self.horizontal_scale,
             self.tile_size,
-        )?;
-        check_range("promote_share", self.promote_share, 0.0, 1.0)?;
-        check_range("demote_share", self.demote_share, 0.0, self.promote_share)?;
-        check_range(
-            "promote_min_distance",
-            self.promote_min_distance,
-            0.0,
-            1000.0,
         )?;
         if let TerrainCollider::Heightfield { subdivisions } = self.collider
             && !(1..=8).contains(&subdivisions)

@@ -14,10 +14,6 @@ fn defaults_are_valid_and_reach_the_papers_test_terrain() {
     assert!((s.slope(9).atan().to_degrees() - 37.0).abs() < 1e-4);
     assert!((s.step_height_at(9) - 0.20).abs() < 1e-6);
     assert!((s.obstacle_height_at(9) - 0.25).abs() < 1e-6);
-    assert_eq!(
-        (s.promote_share, s.promote_min_distance, s.demote_share),
-        (0.7, 2.0, 0.5)
-    );
 }
 
 /// The level at which each of the paper's Table VI terrains is first met, before (one column per
@@ -204,28 +200,6 @@ fn bad_values_are_rejected_with_their_field() {
             ..d()
         },
         "terrain.platform_size",
-    );
-    rejected(
-        TerrainSpec {
-            promote_share: 1.5,
-            ..d()
-        },
-        "terrain.promote_share",
-    );
-    // Demoting above the promotion share would move an env both ways.
-    rejected(
-        TerrainSpec {
-            demote_share: 0.8,
-            ..d()
-        },
-        "terrain.demote_share",
-    );
-    rejected(
-        TerrainSpec {
-            promote_min_distance: -1.0,
-            ..d()
-        },
-        "terrain.promote_min_distance",
     );
     rejected(
         TerrainSpec {
