@@ -197,7 +197,7 @@ impl EnvGroup {
                     // The curriculum judges the episode that just ended by what the robot
                     // walked along its commands against what they asked for (both integrated
                     // per step in `step_task`; see terrain::curriculum).
-                    env.terrain_level = sh.terrain.next_level(
+                    env.terrain_level = grid.next_level(
                         env.terrain_level,
                         env.distance,
                         &cfg.terrain_curriculum,

@@ -148,19 +148,4 @@ impl Terrain {
             Terrain::Grid(g) => g.initial_tile(index, count, rng),
         }
     }
-
-    /// The level after `episode` under `rule` (see [`TerrainGrid::next_level`]); unchanged on
-    /// flat ground.
-    pub fn next_level(
-        &self,
-        current: u32,
-        episode: EpisodeDistance,
-        rule: &LevelRule,
-        rng: &mut impl Rng,
-    ) -> u32 {
-        match self {
-            Terrain::Flat => current,
-            Terrain::Grid(g) => g.next_level(current, episode, rule, rng),
-        }
-    }
 }
