@@ -13,13 +13,14 @@ curves are not masked to one mode. Prints each arm's last iteration and its fina
 from __future__ import annotations
 
 import argparse
-import csv
 from pathlib import Path
 
 import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
+from progress_csv import rows as read_rows
+from progress_csv import series, smooth
 
 ARMS = (
     ("ours", "ours"),
@@ -31,28 +32,6 @@ PANELS = (
     ("step_reward/biped_base_angle", "biped base angle reward per step"),
     ("biped_pose/upright_share", "biped mode: share of steps upright"),
 )
-
-
-def _rows(folder: Path) -> list[dict[str, str]]:
-    with (folder / "progress.csv").open() as f:
-        return list(csv.DictReader(f))
-
-
-def _series(rows: list[dict[str, str]], key: str) -> tuple[list[float], list[float]]:
-    xs, ys = [], []
-    for r in rows:
-        if r.get(key):
-            xs.append(float(r["iteration"]))
-            ys.append(float(r[key]))
-    return xs, ys
-
-
-def _smooth(ys: list[float], window: int = 20) -> list[float]:
-    out, total = [], 0.0
-    for i, y in enumerate(ys):
-        total += y - (ys[i - window] if i >= window else 0.0)
-        out.append(total / min(i + 1, window))
-    return out
 
 
 def main() -> None:
@@ -67,11 +46,11 @@ def main() -> None:
         if not (stage / "progress.csv").exists():
             print(f"{arm}: no progress.csv")
             continue
-        rows = _rows(stage)
+        rows = read_rows(stage)
         finals = []
         for ax, (key, _) in zip(axes, PANELS, strict=True):
-            xs, ys = _series(rows, key)
-            ax.plot(xs, _smooth(ys), color=f"C{index}", label=label)
+            xs, ys = series(rows, key, x="iteration")
+            ax.plot(xs, smooth(ys, 20), color=f"C{index}", label=label)
             tail = ys[-50:]
             finals.append(f"{key.split('/')[-1]} {sum(tail) / max(len(tail), 1):.4f}")
         steps = float(rows[-1]["total_env_steps"]) / 1e6

@@ -14,7 +14,6 @@ run, the env steps of the first check that met the milestone.
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 from pathlib import Path
 
@@ -22,14 +21,11 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
+from progress_csv import rows as read_rows
+from progress_csv import series, smooth
 
 LIN_VEL = "tracking/quad/lin_vel_error_mps"
 KEYS = ("mean_step_reward", "step_reward/quad_tracking_lin_vel")
-
-
-def _rows(folder: Path) -> list[dict[str, str]]:
-    with (folder / "progress.csv").open() as f:
-        return list(csv.DictReader(f))
 
 
 def _checks(folder: Path, steps_per_iteration: float) -> list[tuple[float, float, bool]]:
@@ -45,23 +41,6 @@ def _checks(folder: Path, steps_per_iteration: float) -> list[tuple[float, float
     return out
 
 
-def _series(rows: list[dict[str, str]], key: str) -> tuple[list[float], list[float]]:
-    xs, ys = [], []
-    for r in rows:
-        if r.get(key):
-            xs.append(float(r["total_env_steps"]))
-            ys.append(float(r[key]))
-    return xs, ys
-
-
-def _smooth(ys: list[float], window: int = 10) -> list[float]:
-    out, total = [], 0.0
-    for i, y in enumerate(ys):
-        total += y - (ys[i - window] if i >= window else 0.0)
-        out.append(total / min(i + 1, window))
-    return out
-
-
 def main() -> None:
     """Draw the figure and print each run's first met milestone check."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -72,13 +51,13 @@ def main() -> None:
     for index, spec in enumerate(args.runs):
         color = f"C{index}"
         label, folder = spec.split("=", 1)
-        rows = _rows(Path(folder))
+        rows = read_rows(Path(folder))
         style = "-" if label.startswith("rust") else "--"
         first = rows[0]
         per_iteration = float(first["total_env_steps"]) / float(first["iteration"])
         for ax, key in zip(axes[:2], KEYS, strict=True):
-            xs, ys = _series(rows, key)
-            ax.plot([x / 1e6 for x in xs], _smooth(ys), style, color=color, label=label)
+            xs, ys = series(rows, key)
+            ax.plot([x / 1e6 for x in xs], smooth(ys, 10), style, color=color, label=label)
         checks = _checks(Path(folder), per_iteration)
         if checks:
             axes[2].plot(

@@ -81,16 +81,10 @@ impl Header {
         if !self.physics_engine.is_empty() {
             return self.physics_engine.clone();
         }
-        let task_choice = toml::from_str::<toml::Table>(&self.config_toml)
+        let config = toml::from_str(&self.config_toml)
             .ok()
-            .and_then(|t| {
-                t.get("env")?
-                    .get("task")?
-                    .get("physics")?
-                    .get("engine")?
-                    .as_str()
-                    .map(str::to_string)
-            });
+            .and_then(|t| crate::config::TrainConfig::from_table(t).ok());
+        let task_choice = config.and_then(|c| c.task_engine().map(str::to_string));
         task_choice.unwrap_or_else(|| crate::config::ENGINE_BEFORE_RECORDING.into())
     }
 }

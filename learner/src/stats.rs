@@ -134,6 +134,12 @@ pub struct BipedPoseStats {
     pitch_index: usize,
     rear_feet: Range<usize>,
     upright_pitch: f64,
+    sums: PoseSums,
+}
+
+/// One rollout's sums over biped env-steps.
+#[derive(Debug, Clone, Default)]
+struct PoseSums {
     steps: f64,
     pitch: f64,
     upright: f64,
@@ -165,12 +171,7 @@ impl BipedPoseStats {
             // Feet in FL, FR, RL, RR order: the last two are the rear feet.
             rear_feet: contact.start + 2..contact.start + 4,
             upright_pitch,
-            steps: 0.0,
-            pitch: 0.0,
-            upright: 0.0,
-            rear_up: 0.0,
-            head_steps: 0.0,
-            head: 0.0,
+            sums: PoseSums::default(),
         })
     }
 
@@ -182,46 +183,34 @@ impl BipedPoseStats {
                 continue;
             }
             let pitch = f64::from(after.obs[e * obs + self.pitch_index]);
-            self.steps += 1.0;
-            self.pitch += pitch;
-            self.upright += f64::from(u8::from(pitch > self.upright_pitch));
             let rear = &after.labels[e * labels..(e + 1) * labels][self.rear_feet.clone()];
-            self.rear_up += f64::from(u8::from(rear.iter().all(|&c| c < 0.5)));
+            let sums = &mut self.sums;
+            sums.steps += 1.0;
+            sums.pitch += pitch;
+            sums.upright += f64::from(u8::from(pitch > self.upright_pitch));
+            sums.rear_up += f64::from(u8::from(rear.iter().all(|&c| c < 0.5)));
             if let Some(head) = &after.head_contact {
-                self.head_steps += 1.0;
-                self.head += f64::from(u8::from(head[e]));
+                sums.head_steps += 1.0;
+                sums.head += f64::from(u8::from(head[e]));
             }
         }
     }
 
     /// The means over this rollout's biped env-steps (NaN where there were none); then cleared.
     pub fn summary(&mut self) -> Vec<(String, f64)> {
-        let out = vec![
-            ("biped_pose/pitch".into(), mean(self.pitch, self.steps)),
-            (
-                "biped_pose/upright_share".into(),
-                mean(self.upright, self.steps),
-            ),
+        let s = std::mem::take(&mut self.sums);
+        vec![
+            ("biped_pose/pitch".into(), mean(s.pitch, s.steps)),
+            ("biped_pose/upright_share".into(), mean(s.upright, s.steps)),
             (
                 "biped_pose/head_contact_share".into(),
-                mean(self.head, self.head_steps),
+                mean(s.head, s.head_steps),
             ),
             (
                 "biped_pose/rear_feet_up_share".into(),
-                mean(self.rear_up, self.steps),
+                mean(s.rear_up, s.steps),
             ),
-        ];
-        *self = Self {
-            steps: 0.0,
-            pitch: 0.0,
-            upright: 0.0,
-            rear_up: 0.0,
-            head_steps: 0.0,
-            head: 0.0,
-            rear_feet: self.rear_feet.clone(),
-            ..*self
-        };
-        out
+        ]
     }
 }
 
@@ -290,12 +279,7 @@ mod tests {
             pitch_index: 1,
             rear_feet: 2..4,
             upright_pitch: 1.4,
-            steps: 0.0,
-            pitch: 0.0,
-            upright: 0.0,
-            rear_up: 0.0,
-            head_steps: 0.0,
-            head: 0.0,
+            sums: PoseSums::default(),
         }
     }
 
