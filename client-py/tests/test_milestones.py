@@ -16,8 +16,12 @@ TABLE_VI = {
 
 def test_the_packaged_milestones_extend_each_other():
     known = load_milestones()
-    assert set(known) == {"M1", "M2", "M2+", "M3"}
+    assert set(known) == {"M1", "M2", "M2-biped", "M2+", "M3"}
     m1, m2, m2p, m3 = (known[n] for n in ("M1", "M2", "M2+", "M3"))
+    # The two-policy baseline's biped is held to M2's two-legged checks, no more.
+    biped = known["M2-biped"]
+    assert biped.scenarios == ("tracking_biped",)
+    assert biped.checks == tuple(c for c in m2.checks if c.scenario == "tracking_biped")
     assert m2.checks[: len(m1.checks)] == m1.checks and len(m2.checks) == 7
     assert m2p.checks[:7] == m2.checks and len(m2p.checks) == 11
     assert m2p.scenarios == m2.scenarios  # M2+ needs no scenario M2 does not run
