@@ -98,7 +98,9 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     assert settle.stop.milestone == "M2" and settle.stop.validation_seed == 2000
     assert list(settle.config.policy.actor_hidden_dims) == [256, 128, 64]
     # The terrain recipe inherits the flat recipe's last stage and says what it changes.
-    terrain, explore, stairs, clearance, articulated = load_recipe("unified_terrain").stages
+    terrain, explore, stairs, clearance, articulated, per_mode, pace = load_recipe(
+        "unified_terrain"
+    ).stages
     assert terrain.config.policy == settle.config.policy
     assert (
         terrain.config.env.task["rewards"]["weights"]
@@ -124,6 +126,14 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     assert articulated.config.env.task["physics"]["engine"] == "articulated"
     moved = articulated.config.env.task
     assert {**moved, "physics": clearance.config.env.task["physics"]} == clearance.config.env.task
+    # The sixth lowers the biped's promotion lines alone (decision 0027).
+    lines = {"promote_share_biped": 0.4, "demote_share_biped": 0.3}
+    assert per_mode.config.env.task == {**moved, "terrain_curriculum": lines}
+    assert per_mode.config.ppo == articulated.config.ppo and per_mode.carry == "all"
+    # The seventh doubles the biped's velocity-tracking weight and keeps the rest.
+    paced = pace.config.env.task
+    assert paced["rewards"]["weights"] == {**weights, "biped_tracking_lin_vel": 8.0}
+    assert {**paced, "rewards": per_mode.config.env.task["rewards"]} == per_mode.config.env.task
     # --set applies on top of every stage.
     small = load_recipe("unified_flat", ["env.num_envs=8"])
     assert [s.config.env.num_envs for s in small.stages] == [8, 8, 8]
