@@ -19,6 +19,7 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
+from figure_style import finish_and_save
 from progress_csv import rows as read_rows
 from progress_csv import series, smooth
 
@@ -61,10 +62,7 @@ def main() -> None:
     for ax, (_, title) in zip(axes, PANELS, strict=True):
         ax.set_title(title, fontsize=10)
         ax.set_xlabel("iteration (512 envs x 24 steps)")
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(args.out, dpi=110)
+    finish_and_save(fig, axes, args.out)
 
 
 if __name__ == "__main__":

@@ -21,6 +21,7 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
+from figure_style import finish_and_save
 from progress_csv import rows as read_rows
 from progress_csv import series, smooth
 
@@ -81,10 +82,7 @@ def main() -> None:
     axes[2].axhline(0.15, color="grey", lw=0.8)
     for ax in axes:
         ax.set_xlabel("env steps (M)")
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(args.out, dpi=110)
+    finish_and_save(fig, axes, args.out)
 
 
 if __name__ == "__main__":

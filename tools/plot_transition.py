@@ -21,6 +21,7 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
+from figure_style import finish_and_save
 
 
 def parse_labelled(text: str) -> tuple[str, Path]:
@@ -47,9 +48,7 @@ def summary(label: str, transition: dict[str, Any]) -> str:
 def main() -> None:
     """Draw the figure and print each controller's figures."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument(
-        "reports", nargs="+", type=parse_labelled, metavar="LABEL=REPORT"
-    )
+    parser.add_argument("reports", nargs="+", type=parse_labelled, metavar="LABEL=REPORT")
     parser.add_argument("--out", required=True)
     args = parser.parse_args()
     fig, ax = plt.subplots(figsize=(7, 4))
@@ -76,10 +75,7 @@ def main() -> None:
     ax.axvline(0.0, color="grey", linestyle="--", linewidth=1)
     ax.set_xlabel("time from the switch to four legs (s)")
     ax.set_ylabel("base height (m), mean and one std. over trials")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(args.out, dpi=110)
+    finish_and_save(fig, [ax], args.out)
 
 
 if __name__ == "__main__":
