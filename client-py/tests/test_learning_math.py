@@ -94,3 +94,42 @@ def test_ppo_update_applies_the_rule_per_mini_batch():
     assert ppo.learning_rate >= 1.5e-3 - 1e-12
     assert stats["learning_rate"] == ppo.learning_rate
     assert all(torch.isfinite(torch.tensor(v)) for v in stats.values())
+
+
+def _narrowing_rollout(ac: ActorCritic) -> RolloutStorage:
+    """Actions near the mean earned +1 and far ones -1: an update narrows the std."""
+    steps, envs = 4, 8
+    st = RolloutStorage(steps, envs, 6, 4, 5, 3, 1)
+    obs = torch.full((envs, 6), 0.5)
+    actions = torch.tensor([0.1, -0.1, 2.0, -2.0] * 2).unsqueeze(1)
+    rewards = torch.where(actions.abs().squeeze(1) < 1.0, 1.0, -1.0)
+    with torch.no_grad():
+        dist = ac.distribution(obs)
+        log_prob = dist.log_prob(actions).sum(-1)
+    for _ in range(steps):
+        st.add(
+            obs,
+            torch.full((envs, 5), 0.5),
+            torch.zeros(envs, 3),
+            actions,
+            log_prob,
+            dist.mean,
+            dist.stddev,
+            torch.zeros(envs),
+            rewards,
+            torch.ones(envs),
+        )
+    st.compute_returns(torch.zeros(envs), 0.99, 0.95)
+    return st
+
+
+@pytest.mark.parametrize("floor", [0.0, 0.95])
+def test_the_std_floor_holds_where_the_update_would_narrow(floor: float) -> None:
+    torch.manual_seed(0)
+    ac = ActorCritic(6, 5, 1, (8,), (8,), init_noise_std=1.0)
+    cfg = PPOConfig(learning_rate=1e-2, schedule="fixed", entropy_coef=0.0, min_action_std=floor)
+    stats = PPO(ac, cfg).update(_narrowing_rollout(ac))
+    if floor == 0.0:
+        assert stats["action_std"] < 0.95
+    else:
+        assert stats["action_std"] == pytest.approx(0.95, abs=1e-6)

@@ -98,7 +98,7 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     assert settle.stop.milestone == "M2" and settle.stop.validation_seed == 2000
     assert list(settle.config.policy.actor_hidden_dims) == [256, 128, 64]
     # The terrain recipe inherits the flat recipe's last stage and says what it changes.
-    terrain, explore, stairs, clearance, articulated, per_mode, pace = load_recipe(
+    terrain, explore, stairs, clearance, articulated, per_mode, pace, quad_pace = load_recipe(
         "unified_terrain"
     ).stages
     assert terrain.config.policy == settle.config.policy
@@ -134,9 +134,27 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     paced = pace.config.env.task
     assert paced["rewards"]["weights"] == {**weights, "biped_tracking_lin_vel": 8.0}
     assert {**paced, "rewards": per_mode.config.env.task["rewards"]} == per_mode.config.env.task
+    # The eighth doubles the quad's too.
+    quad_paced = quad_pace.config.env.task["rewards"]["weights"]
+    assert quad_paced == {**paced["rewards"]["weights"], "quad_tracking_lin_vel": 4.0}
+    assert quad_pace.config.ppo == pace.config.ppo and quad_pace.carry == "all"
     # --set applies on top of every stage.
     small = load_recipe("unified_flat", ["env.num_envs=8"])
     assert [s.config.env.num_envs for s in small.stages] == [8, 8, 8]
+
+
+def test_the_biped_baseline_is_unified_flat_in_biped_mode_with_a_std_floor_to_start():
+    flat_upright = load_recipe("unified_flat").stages[0]
+    upright, sharpen, settle = load_recipe("biped_flat").stages
+    assert upright.start == "fresh"
+    assert upright.config.env.task["modes"] == {"biped_probability": 1.0}
+    assert upright.config.env.task["rewards"] == flat_upright.config.env.task["rewards"]
+    assert upright.config.policy == flat_upright.config.policy
+    # Decision record 0028: the floor holds stage 1's exploration and lifts after it.
+    assert upright.config.ppo.min_action_std == 1.0
+    assert sharpen.config.ppo.min_action_std == 0.0 and settle.config.ppo.min_action_std == 0.0
+    assert flat_upright.config.ppo.min_action_std == 0.0
+    assert all(s.stop.milestone == "M2-biped" for s in (upright, sharpen, settle))
 
 
 @pytest.mark.parametrize(

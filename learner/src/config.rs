@@ -101,6 +101,8 @@ pub struct PpoSection {
     pub desired_kl: f64,
     /// Normalise advantages over the batch.
     pub normalize_advantage: bool,
+    /// Floor of every action dim's std after each Adam step (0: none).
+    pub min_action_std: f64,
 }
 
 impl Default for PpoSection {
@@ -121,6 +123,7 @@ impl Default for PpoSection {
             schedule: "adaptive".into(),
             desired_kl: d.desired_kl,
             normalize_advantage: d.normalize_advantage,
+            min_action_std: d.min_action_std,
         }
     }
 }
@@ -306,6 +309,7 @@ impl TrainConfig {
             adaptive: p.schedule == "adaptive",
             desired_kl: p.desired_kl,
             normalize_advantage: p.normalize_advantage,
+            min_action_std: p.min_action_std,
             // torch's intra-op threads in the Python learner; here, the mini-batch's shares.
             update_threads: usize::try_from(self.runner.update_threads.max(1)).unwrap_or(1),
         }

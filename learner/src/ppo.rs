@@ -40,6 +40,8 @@ pub struct PpoConfig {
     pub desired_kl: f64,
     /// Normalise advantages over the batch (true).
     pub normalize_advantage: bool,
+    /// Floor of every action dim's std after each Adam step (0: none; decision record 0028).
+    pub min_action_std: f64,
     /// Threads sharing each mini-batch's forward and backward passes (1): each takes a slice
     /// of the rows, and their gradients are summed before the clip and the Adam step, so the
     /// update is the one-thread update up to float rounding.
@@ -62,6 +64,7 @@ impl Default for PpoConfig {
             adaptive: true,
             desired_kl: 0.01,
             normalize_advantage: true,
+            min_action_std: 0.0,
             update_threads: 1,
         }
     }
@@ -308,6 +311,9 @@ impl Ppo {
                 let mut grads = part.grads;
                 clip_grad_norm(&mut grads, &ac, cfg.max_grad_norm);
                 ac = self.optimizer.step(self.learning_rate, ac, grads);
+                if cfg.min_action_std > 0.0 {
+                    ac = floor_log_std(ac, cfg.min_action_std.ln() as f32);
+                }
             }
         }
         let c = count.max(1) as f64;
@@ -319,6 +325,15 @@ impl Ppo {
         stats.action_std = f64::from(ac.log_std.val().exp().mean().into_scalar::<f32>());
         (ac, stats)
     }
+}
+
+/// `ac` with every log-std raised to at least `min_log_std`: a projection after the step, so
+/// the parameter (and its Adam state, keyed by its id) stays the one trained.
+fn floor_log_std(mut ac: ActorCritic, min_log_std: f32) -> ActorCritic {
+    ac.log_std = ac
+        .log_std
+        .map(|t| t.clamp_min(min_log_std).detach().require_grad());
+    ac
 }
 
 /// One mini-batch's gradients of the PPO loss and its figures (KL and losses as batch means).
@@ -675,6 +690,65 @@ mod tests {
         assert_eq!(stats.learning_rate, 1e-3);
         // Entropy of one dim with log-std near 0: 1.4189 (the bonus moved it slightly).
         assert!((stats.entropy - 1.4189).abs() < 0.05, "{}", stats.entropy);
+    }
+
+    /// Actions near the mean earned +1 and far ones -1, so the update narrows the std: from 1.0
+    /// it falls below 0.95 with no floor, and with a 0.95 floor it ends exactly there.
+    #[test]
+    fn the_std_floor_holds_where_the_update_would_narrow() {
+        let dev = device();
+        let layout = Layout {
+            labels: 1,
+            actor_obs: 2,
+            history: 1,
+            critic_obs: 1,
+            actions: 1,
+        };
+        let (steps, envs) = (4, 8);
+        let mut storage = RolloutStorage::new(steps, envs, layout);
+        for _ in 0..steps {
+            let actions: Vec<f32> = (0..envs).map(|e| [0.1, -0.1, 2.0, -2.0][e % 4]).collect();
+            let rewards: Vec<f32> = actions
+                .iter()
+                .map(|a| if a.abs() < 1.0 { 1.0 } else { -1.0 })
+                .collect();
+            let log_prob: Vec<f32> = actions.iter().map(|a| -0.5 * a * a - 0.918_938_5).collect();
+            storage
+                .add(&Step {
+                    actor_obs: &vec![0.5; envs * 2],
+                    critic_obs: &vec![0.5; envs],
+                    labels: &vec![0.0; envs],
+                    actions: &actions,
+                    log_prob: &log_prob,
+                    mu: &vec![0.0; envs],
+                    sigma: &vec![1.0; envs],
+                    values: &vec![0.0; envs],
+                    rewards: &rewards,
+                    dones: &vec![true; envs],
+                })
+                .unwrap();
+        }
+        storage.compute_returns(&vec![0.0; envs], 0.99, 0.95, true);
+        let std_after = |min_action_std: f64| {
+            let mut rng = Rng::new(0);
+            let ac = ActorCritic::new(2, 1, 1, &[8], &[8], 1.0, &mut rng, &dev);
+            let mut ppo = Ppo::new(PpoConfig {
+                adaptive: false,
+                learning_rate: 1e-2,
+                entropy_coef: 0.0,
+                min_action_std,
+                ..PpoConfig::default()
+            });
+            let (_, stats) = ppo.update(ac, &storage, &mut rng, &dev);
+            stats.action_std
+        };
+        let free = std_after(0.0);
+        assert!(free < 0.95, "std with no floor {free}");
+        let floored = std_after(0.95);
+        assert!(
+            (floored - 0.95).abs() < 1e-5,
+            "std with a 0.95 floor {floored}"
+        );
     }
 
     /// Splitting each mini-batch over threads changes float rounding only: on a random rollout

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
@@ -30,6 +31,9 @@ class PPOConfig:
         schedule: ``"adaptive"`` (KL-driven) or ``"fixed"``.
         desired_kl: Target KL of the adaptive schedule (0.01).
         normalize_advantage: Normalise advantages over the batch (True).
+        min_action_std: Floor of every action dim's std, applied after each Adam step (0: none).
+            The biped-only baseline's stage 1 needs it: alone, its std fell from 1.0 to 0.37 and
+            exploration with it (docs/src/decisions/0028-action-std-floor.md).
     """
 
     num_learning_epochs: int = 5
@@ -45,6 +49,7 @@ class PPOConfig:
     schedule: str = "adaptive"
     desired_kl: float = 0.01
     normalize_advantage: bool = True
+    min_action_std: float = 0.0
 
 
 def gaussian_kl(
@@ -153,6 +158,9 @@ class PPO:
             loss.backward()
             nn.utils.clip_grad_norm_(ac.parameters(), cfg.max_grad_norm)
             self.optimizer.step()
+            if cfg.min_action_std > 0.0:
+                with torch.no_grad():
+                    ac.log_std.clamp_(min=math.log(cfg.min_action_std))
 
             sums["value_loss"] += value_loss.item()
             sums["surrogate_loss"] += surrogate_loss.item()
