@@ -50,11 +50,12 @@ class Rollout:
     def __init__(
         self,
         distance: torch.Tensor,
+        estimated: torch.Tensor,
         fell: torch.Tensor,
         terms: torch.Tensor,
         apex: torch.Tensor,
     ) -> None:
-        self.distance, self.fell, self.terms = distance, fell, terms
+        self.distance, self.estimated, self.fell, self.terms = distance, estimated, fell, terms
         self.apex = apex  # [4] the 90th percentile of each foot sole's height over the terrain
 
 
@@ -85,7 +86,7 @@ def rollout(
     history = ObservationHistory(envs, 3, dims["obs_dim"], torch.device("cpu"))
     history.reset(env.last.obs)
     alive = torch.ones(envs, dtype=torch.bool)
-    distance = torch.zeros(envs)
+    distance, estimated = torch.zeros(envs), torch.zeros(envs)
     terms = torch.zeros(len(env.spec.reward_terms))
     counted = 0
     foot_height = env.spec.labels.slice("foot_height")
@@ -98,6 +99,10 @@ def rollout(
         frame = heading_frame(out.obs, at)
         forward = in_heading_frame(frame, out.labels[:, at.velocity])[:, 0]
         distance += torch.where(alive, forward * DT, 0.0)
+        with torch.no_grad():  # e_t of the same o_t as the label: the policy's next input
+            estimate = policy.estimator(history.flat.view(envs, -1))
+        believed = in_heading_frame(frame, estimate[:, at.velocity])[:, 0]
+        estimated += torch.where(alive, believed * DT, 0.0)
         if out.reward_terms is not None and alive.any():
             terms += out.reward_terms[alive].sum(0)
             counted += int(alive.sum())
@@ -106,7 +111,7 @@ def rollout(
     env.close()
     fell = ~alive
     apex = torch.cat(heights).quantile(0.9, dim=0)
-    return Rollout(distance, fell, terms / max(counted, 1), apex), env.spec.reward_terms
+    return Rollout(distance, estimated, fell, terms / max(counted, 1), apex), env.spec.reward_terms
 
 
 def main() -> None:
@@ -129,7 +134,8 @@ def main() -> None:
             server, a.checkpoint, "flat", 0, a.mode, a.vx, a.envs, a.steps, a.seed
         )
         print(
-            f"flat: walked {flat.distance.mean():+.2f} m of {commanded:.1f} commanded, "
+            f"flat: walked {flat.distance.mean():+.2f} m of {commanded:.1f} commanded "
+            f"(estimated {flat.estimated.mean():+.2f}), "
             f"fell {flat.fell.float().mean():.2f}, feet's 90th percentile height "
             + "/".join(f"{h:.3f}" for h in flat.apex.tolist()),
             flush=True,
@@ -155,7 +161,7 @@ def main() -> None:
             print(
                 f"{a.terrain} level {level}: walked {walked.mean():+.2f} m "
                 f"(quartiles {walked.quantile(0.25):+.2f} / {walked.median():+.2f} / "
-                f"{walked.quantile(0.75):+.2f}), "
+                f"{walked.quantile(0.75):+.2f}; estimated {r.estimated.mean():+.2f}), "
                 f"promoted {(walked > promote_m).float().mean():.2f}, "
                 f"demoted {(walked < DEMOTE * commanded).float().mean():.2f}, "
                 f"fell {r.fell.float().mean():.2f}, feet's 90th percentile height "
