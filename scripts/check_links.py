@@ -7,7 +7,8 @@ Four checks, all offline:
    names a file or folder that exists, and every ``#anchor`` names a heading of its target page
    (ids made as mdBook makes them). A page of the book may link only inside ``docs/src``: the
    book publishes nothing else, so a link out of it would break in the HTML.
-2. The book: every page under ``docs/src`` is in ``SUMMARY.md`` (mdBook renders no other).
+2. The book: every page under ``docs/src`` is in ``SUMMARY.md`` (mdBook renders no other), and
+   every decision record in the index ``decisions.md``.
 3. The built HTML (``mdbook build docs`` first): every relative ``href`` and ``src`` names a
    file of the book, and every fragment an ``id`` of its target page.
 4. The code's citations: every ``docs/src/<page>.md`` named in a source file exists (comments
@@ -113,16 +114,26 @@ def check_markdown(page: Path, root: Path, book_src: Path, errors: list[str]) ->
                     errors.append(f"{where}: no heading with id '{anchor}' in {dest.name}")
 
 
-def check_summary(book_src: Path, root: Path, errors: list[str]) -> None:
-    """Every page under the book's source is listed in SUMMARY.md."""
-    summary = book_src / "SUMMARY.md"
-    listed = {
-        Path(os.path.normpath(book_src / unquote(m.group(1).partition("#")[0])))
-        for m in MD_LINK.finditer(summary.read_text(encoding="utf-8"))
+def linked_pages(index: Path) -> set[Path]:
+    """The local pages that ``index`` links to, as normalised paths."""
+    return {
+        Path(os.path.normpath(index.parent / unquote(m.group(1).partition("#")[0])))
+        for m in MD_LINK.finditer(index.read_text(encoding="utf-8"))
     }
+
+
+def check_summary(book_src: Path, root: Path, errors: list[str]) -> None:
+    """Every page under the book's source is in SUMMARY.md; every decision record in its index."""
+    listed = linked_pages(book_src / "SUMMARY.md")
     for page in sorted(book_src.rglob("*.md")):
         if page.name != "SUMMARY.md" and page not in listed:
             errors.append(f"{page.relative_to(root)}: not in SUMMARY.md, so not in the book")
+    index = book_src / "decisions.md"
+    if index.is_file():
+        indexed = linked_pages(index)
+        for record in sorted((book_src / "decisions").glob("*.md")):
+            if record not in indexed:
+                errors.append(f"{record.relative_to(root)}: not in the index {index.name}")
 
 
 class _Anchors(HTMLParser):
