@@ -68,6 +68,12 @@ def test_means_per_type_and_mode_by_hand() -> None:
         "terrain_level/slope_up",
         "terrain_level/quad",
         "terrain_level/biped",
+        "promoted/stairs_up",
+        "demoted/stairs_up",
+        "promoted/obstacles",
+        "demoted/obstacles",
+        "promoted/slope_up",
+        "demoted/slope_up",
     ]
     # Cleared: the same keys (the CSV's columns from the first row on), NaN without steps.
     again = stats.summary()
@@ -76,3 +82,24 @@ def test_means_per_type_and_mode_by_hand() -> None:
     # A rollout with no biped step: the biped key is there, NaN.
     stats.add(torch.tensor([1, 1, 1, 1]), torch.tensor([2, 2, 2, 2]))
     assert math.isnan(stats.summary()["terrain_level/biped"])
+
+
+def test_level_moves_per_type_by_hand() -> None:
+    stats = TerrainLevelStats(
+        ["stairs_up", "stairs_up", "stairs_up", "obstacles"], torch.device("cpu")
+    )
+    # Step 1: envs 0 and 3 end; env 0 comes back a level up, env 3 stays. Env 1's level may not
+    # change without an end, and does not count.
+    stats.add_episode_ends(
+        torch.tensor([2, 4, 6, 1]), torch.tensor([3, 4, 6, 1]), torch.tensor([1, 0, 0, 1])
+    )
+    # Step 2: envs 1 and 2 end; env 1 down, env 2 from the top level to a random lower one.
+    stats.add_episode_ends(
+        torch.tensor([3, 4, 9, 1]), torch.tensor([3, 3, 0, 1]), torch.tensor([0, 1, 1, 0])
+    )
+    out = stats.summary()
+    # stairs_up: 3 ends, 1 up, 2 down; obstacles: 1 end, no move.
+    assert math.isclose(out["promoted/stairs_up"], 1 / 3)
+    assert math.isclose(out["demoted/stairs_up"], 2 / 3)
+    assert out["promoted/obstacles"] == 0.0 and out["demoted/obstacles"] == 0.0
+    assert math.isnan(stats.summary()["promoted/stairs_up"])

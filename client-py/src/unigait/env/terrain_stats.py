@@ -1,4 +1,7 @@
-"""Mean terrain level per terrain type and per mode, per iteration (the terrain curriculum's log).
+"""The terrain curriculum's log, per iteration: levels per terrain type and mode, and level moves.
+
+The mean level per terrain type and per mode, and the share of each type's ended episodes that
+moved their env up or down a level.
 
 The step reply carries each env's level but not its terrain type. The type needs no wire field:
 the server places env ``i`` of a session of ``n`` envs in grid column ``i * C // n`` (``C``
@@ -65,11 +68,14 @@ def env_terrain_types(terrain: str, counts: Sequence[int]) -> list[str]:
 
 
 class TerrainLevelStats:
-    """Sums of the terrain level over env-steps, by terrain type and by mode.
+    """Sums of the terrain level over env-steps, by terrain type and by mode, and level moves.
 
     Scalars ``terrain_level/<type>`` for every type of the batch's grid and
     ``terrain_level/quad`` / ``terrain_level/biped`` always, so the CSV has its columns from the
-    first iteration (NaN where a rollout had no such env-step).
+    first iteration (NaN where a rollout had no such env-step). Then ``promoted/<type>`` and
+    ``demoted/<type>``: the share of the type's episodes ended in the rollout after which the env
+    came back a level higher or lower (NaN without an ended episode). A row's top level promotes
+    to a random level (legged_gym's rule), which counts here by where it lands.
 
     Args:
         env_types: The terrain type of every env (:func:`env_terrain_types`).
@@ -97,6 +103,27 @@ class TerrainLevelStats:
         self.type_steps = torch.zeros(len(self.types), dtype=torch.float64, device=self.device)
         self.mode_sum = torch.zeros(len(MODES), dtype=torch.float64, device=self.device)
         self.mode_steps = torch.zeros(len(MODES), dtype=torch.float64, device=self.device)
+        self.ends = torch.zeros(len(self.types), dtype=torch.float64, device=self.device)
+        self.ups = torch.zeros(len(self.types), dtype=torch.float64, device=self.device)
+        self.downs = torch.zeros(len(self.types), dtype=torch.float64, device=self.device)
+
+    def add_episode_ends(
+        self, level_before: torch.Tensor, level_after: torch.Tensor, dones: torch.Tensor
+    ) -> None:
+        """Count one step's ended episodes: levels int [N] before and after it, ``dones`` [N].
+
+        An ended env's level after the step is its next episode's (the server resets it within
+        the step), so the difference is the curriculum's verdict on the episode.
+        """
+        ended = dones.to(self.device).bool()
+        change = level_after.to(self.device, torch.int64) - level_before.to(
+            self.device, torch.int64
+        )
+        n = len(self.types)
+        types = self.type_of_env
+        self.ends += torch.bincount(types[ended], minlength=n)
+        self.ups += torch.bincount(types[ended & (change > 0)], minlength=n)
+        self.downs += torch.bincount(types[ended & (change < 0)], minlength=n)
 
     def add(self, level: torch.Tensor, mode: torch.Tensor) -> None:
         """Add one step: ``level`` int [N] and ``mode`` u8 [N] (1 biped, 2 quad) of every env."""
@@ -108,7 +135,10 @@ class TerrainLevelStats:
         self.mode_steps += torch.bincount(md, minlength=len(MODES))
 
     def summary(self) -> dict[str, float]:
-        """Mean level per type and per mode since the last summary (NaN if none); then clear."""
+        """Mean level per type and per mode, and level moves per type, since the last summary.
+
+        NaN where there was none; then clear.
+        """
 
         def mean(total: torch.Tensor, count: torch.Tensor) -> float:
             return float(total) / float(count) if float(count) > 0 else math.nan
@@ -119,5 +149,8 @@ class TerrainLevelStats:
         }
         for k, name in enumerate(MODES):
             out[f"terrain_level/{name}"] = mean(self.mode_sum[k], self.mode_steps[k])
+        for k, name in enumerate(self.types):
+            out[f"promoted/{name}"] = mean(self.ups[k], self.ends[k])
+            out[f"demoted/{name}"] = mean(self.downs[k], self.ends[k])
         self.clear()
         return out

@@ -230,6 +230,7 @@ class OnPolicyRunner:
                 self.biped_pose.add(step.mode, nxt)
                 level += float(nxt.terrain_level.float().mean())
                 terrain.add(nxt.terrain_level, nxt.mode)
+                terrain.add_episode_ends(step.terrain_level, nxt.terrain_level, nxt.dones)
             step = nxt
         self.terrain_levels = [int(x) for x in step.terrain_level.tolist()]
         if self.drawer is not None:
