@@ -98,9 +98,9 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     assert settle.stop.milestone == "M2" and settle.stop.validation_seed == 2000
     assert list(settle.config.policy.actor_hidden_dims) == [256, 128, 64]
     # The terrain recipe inherits the flat recipe's last stage and says what it changes.
-    terrain, explore, stairs, clearance, articulated, per_mode, pace, quad_pace = load_recipe(
-        "unified_terrain"
-    ).stages
+    (terrain, explore, stairs, clearance, articulated, per_mode, pace, quad_pace, anticipate) = (
+        load_recipe("unified_terrain").stages
+    )
     assert terrain.config.policy == settle.config.policy
     assert (
         terrain.config.env.task["rewards"]["weights"]
@@ -138,6 +138,13 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     quad_paced = quad_pace.config.env.task["rewards"]["weights"]
     assert quad_paced == {**paced["rewards"]["weights"], "quad_tracking_lin_vel": 4.0}
     assert quad_pace.config.ppo == pace.config.ppo and quad_pace.carry == "all"
+    # The ninth looks 10 cm around each foot for the clearance's terrain (decision 0029).
+    looked = anticipate.config.env.task
+    assert looked["rewards"] == {
+        **quad_pace.config.env.task["rewards"],
+        "foot_clearance_radius": 0.1,
+    }
+    assert {**looked, "rewards": quad_pace.config.env.task["rewards"]} == quad_pace.config.env.task
     # --set applies on top of every stage.
     small = load_recipe("unified_flat", ["env.num_envs=8"])
     assert [s.config.env.num_envs for s in small.stages] == [8, 8, 8]
