@@ -367,6 +367,11 @@ impl Learner {
             // The mode each env acted in, and the state the step left it in.
             envs.biped_pose.add(&envs.last.mode, &next, d.obs, d.labels);
             envs.terrain_stats.add(&next.terrain_level, &next.mode);
+            envs.terrain_stats.add_episode_ends(
+                &envs.last.terrain_level,
+                &next.terrain_level,
+                &dones,
+            );
             level += next
                 .terrain_level
                 .iter()

@@ -54,7 +54,9 @@ fn mean(sum: f64, count: f64) -> f64 {
 
 /// Sums of the terrain level over env-steps, by terrain type and by mode; `terrain_level/<type>`
 /// for every type of the batch and `terrain_level/quad`, `terrain_level/biped` always (NaN
-/// where a rollout had no such env-step).
+/// where a rollout had no such env-step). Then `promoted/<type>` and `demoted/<type>`: the share
+/// of the type's ended episodes after which the env came back a level higher or lower (NaN
+/// without an ended episode), as the Python learner logs them.
 #[derive(Debug, Clone)]
 pub struct TerrainLevelStats {
     types: Vec<String>,
@@ -63,6 +65,9 @@ pub struct TerrainLevelStats {
     type_steps: Vec<f64>,
     mode_sum: [f64; 2],
     mode_steps: [f64; 2],
+    ends: Vec<f64>,
+    ups: Vec<f64>,
+    downs: Vec<f64>,
 }
 
 impl TerrainLevelStats {
@@ -87,6 +92,25 @@ impl TerrainLevelStats {
             type_steps: vec![0.0; k],
             mode_sum: [0.0; 2],
             mode_steps: [0.0; 2],
+            ends: vec![0.0; k],
+            ups: vec![0.0; k],
+            downs: vec![0.0; k],
+        }
+    }
+
+    /// One step's ended episodes: every env's level before and after the step. An ended env's
+    /// level after it is its next episode's (the server resets it within the step), so the
+    /// difference is the curriculum's verdict on the episode.
+    pub fn add_episode_ends(&mut self, before: &[u32], after: &[u32], dones: &[bool]) {
+        for (((&b, &a), &done), &t) in before.iter().zip(after).zip(dones).zip(&self.type_of_env) {
+            if done {
+                self.ends[t] += 1.0;
+                if a > b {
+                    self.ups[t] += 1.0;
+                } else if a < b {
+                    self.downs[t] += 1.0;
+                }
+            }
         }
     }
 
@@ -117,10 +141,17 @@ impl TerrainLevelStats {
             let m = mean(self.mode_sum[k], self.mode_steps[k]);
             out.push((format!("terrain_level/{name}"), m));
         }
+        for (k, name) in self.types.iter().enumerate() {
+            out.push((format!("promoted/{name}"), mean(self.ups[k], self.ends[k])));
+            out.push((format!("demoted/{name}"), mean(self.downs[k], self.ends[k])));
+        }
         self.type_sum.fill(0.0);
         self.type_steps.fill(0.0);
         self.mode_sum = [0.0; 2];
         self.mode_steps = [0.0; 2];
+        self.ends.fill(0.0);
+        self.ups.fill(0.0);
+        self.downs.fill(0.0);
         out
     }
 }
@@ -346,5 +377,23 @@ mod tests {
         assert_eq!(get("terrain_level/biped"), (4.0 + 2.0 + 6.0) / 3.0);
         // Cleared: no env-steps since, so every mean is NaN.
         assert!(stats.summary().iter().all(|(_, v)| v.is_nan()));
+    }
+
+    /// Three "a" envs and one "b": env 0 ends and comes back up, env 3 ends and stays; then env
+    /// 1 ends and goes down, env 2 ends at the top and lands lower. Env 1's level in the first
+    /// step does not count: it did not end.
+    #[test]
+    fn level_moves_per_type_by_hand() {
+        let types: Vec<String> = ["a", "a", "a", "b"].iter().map(|s| s.to_string()).collect();
+        let mut stats = TerrainLevelStats::new(&types);
+        stats.add_episode_ends(&[2, 4, 6, 1], &[3, 5, 6, 1], &[true, false, false, true]);
+        stats.add_episode_ends(&[3, 5, 9, 1], &[3, 4, 0, 1], &[false, true, true, false]);
+        let out = stats.summary();
+        let get = |k: &str| out.iter().find(|(n, _)| n == k).expect(k).1;
+        assert!((get("promoted/a") - 1.0 / 3.0).abs() < 1e-12);
+        assert!((get("demoted/a") - 2.0 / 3.0).abs() < 1e-12);
+        assert_eq!((get("promoted/b"), get("demoted/b")), (0.0, 0.0));
+        let again = stats.summary();
+        assert!(again.iter().all(|(_, v)| v.is_nan()), "cleared");
     }
 }
