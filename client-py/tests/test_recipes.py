@@ -152,13 +152,17 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
 
 def test_the_biped_baseline_is_unified_flat_in_biped_mode_with_a_std_floor_to_start():
     flat_upright = load_recipe("unified_flat").stages[0]
-    upright, sharpen, settle = load_recipe("biped_flat").stages
-    assert upright.start == "fresh"
-    assert upright.config.env.task["modes"] == {"biped_probability": 1.0}
-    assert upright.config.env.task["rewards"] == flat_upright.config.env.task["rewards"]
-    assert upright.config.policy == flat_upright.config.policy
-    # Decision record 0028: the floor holds stage 1's exploration and lifts after it.
-    assert upright.config.ppo.min_action_std == 1.0
+    balance, upright, sharpen, settle = load_recipe("biped_flat").stages
+    assert balance.start == "fresh" and upright.start == "previous" and upright.carry == "all"
+    assert balance.config.env.task["modes"] == {"biped_probability": 1.0}
+    assert balance.config.env.task["rewards"] == flat_upright.config.env.task["rewards"]
+    assert balance.config.policy == flat_upright.config.policy
+    # Decision record 0030: spawned nose-down to learn the stance, then the task's spawns.
+    assert balance.config.env.task["init"] == {"pitch": [1.0, 1.5]}
+    assert balance.stop.milestone is None and balance.stop.iterations == 1500
+    assert upright.config.env.task["init"] == {"pitch": [0.0, 1.3]}
+    # Decision record 0028: the floor holds the first two stages' exploration and lifts after.
+    assert balance.config.ppo.min_action_std == 1.0 and upright.config.ppo.min_action_std == 1.0
     assert sharpen.config.ppo.min_action_std == 0.0 and settle.config.ppo.min_action_std == 0.0
     assert flat_upright.config.ppo.min_action_std == 0.0
     assert all(s.stop.milestone == "M2-biped" for s in (upright, sharpen, settle))
