@@ -640,11 +640,10 @@ mod tests {
         }
     }
 
-    /// A rollout where action +1 always earned advantage +1 and action -1 advantage -1: one
-    /// update must raise the actor's mean (towards +1).
-    #[test]
-    fn update_prefers_the_advantaged_action() {
-        let dev = device();
+    /// A 4-step x 8-env rollout of one-dim actions drawn from N(0, 1) (the log-probabilities
+    /// say so), every step ending its episode: env e takes `actions[e % len]` and earns
+    /// `reward(action)`. Returns computed.
+    fn one_action_rollout(actions: &[f32], reward: impl Fn(f32) -> f32) -> RolloutStorage {
         let layout = Layout {
             labels: 1,
             actor_obs: 2,
@@ -652,31 +651,40 @@ mod tests {
             critic_obs: 1,
             actions: 1,
         };
-        let mut rng = Rng::new(0);
-        let ac = ActorCritic::new(2, 1, 1, &[8], &[8], 1.0, &mut rng, &dev);
         let (steps, envs) = (4, 8);
         let mut storage = RolloutStorage::new(steps, envs, layout);
+        let taken: Vec<f32> = (0..envs).map(|e| actions[e % actions.len()]).collect();
+        let rewards: Vec<f32> = taken.iter().map(|&a| reward(a)).collect();
+        // log N(a; 0, 1) = -a^2 / 2 - 0.918939.
+        let log_prob: Vec<f32> = taken.iter().map(|a| -0.5 * a * a - 0.918_938_5).collect();
         for _ in 0..steps {
-            let actions: Vec<f32> = (0..envs)
-                .map(|e| if e % 2 == 0 { 1.0 } else { -1.0 })
-                .collect();
             storage
                 .add(&Step {
                     actor_obs: &vec![0.5; envs * 2],
                     critic_obs: &vec![0.5; envs],
                     labels: &vec![0.0; envs],
-                    actions: &actions,
-                    // log N(+-1; 0, 1) = -0.5 - 0.918939.
-                    log_prob: &vec![-1.418_938_5; envs],
+                    actions: &taken,
+                    log_prob: &log_prob,
                     mu: &vec![0.0; envs],
                     sigma: &vec![1.0; envs],
                     values: &vec![0.0; envs],
-                    rewards: &actions,
+                    rewards: &rewards,
                     dones: &vec![true; envs],
                 })
                 .unwrap();
         }
         storage.compute_returns(&vec![0.0; envs], 0.99, 0.95, true);
+        storage
+    }
+
+    /// A rollout where action +1 always earned advantage +1 and action -1 advantage -1: one
+    /// update must raise the actor's mean (towards +1).
+    #[test]
+    fn update_prefers_the_advantaged_action() {
+        let dev = device();
+        let mut rng = Rng::new(0);
+        let ac = ActorCritic::new(2, 1, 1, &[8], &[8], 1.0, &mut rng, &dev);
+        let storage = one_action_rollout(&[1.0, -1.0], |a| a);
         let x = || matrix(vec![0.5, 0.5], 1, 2, &dev);
         let before = values(ac.actor.forward(x())).unwrap()[0];
         let mut ppo = Ppo::new(PpoConfig {
@@ -697,38 +705,9 @@ mod tests {
     #[test]
     fn the_std_floor_holds_where_the_update_would_narrow() {
         let dev = device();
-        let layout = Layout {
-            labels: 1,
-            actor_obs: 2,
-            history: 1,
-            critic_obs: 1,
-            actions: 1,
-        };
-        let (steps, envs) = (4, 8);
-        let mut storage = RolloutStorage::new(steps, envs, layout);
-        for _ in 0..steps {
-            let actions: Vec<f32> = (0..envs).map(|e| [0.1, -0.1, 2.0, -2.0][e % 4]).collect();
-            let rewards: Vec<f32> = actions
-                .iter()
-                .map(|a| if a.abs() < 1.0 { 1.0 } else { -1.0 })
-                .collect();
-            let log_prob: Vec<f32> = actions.iter().map(|a| -0.5 * a * a - 0.918_938_5).collect();
-            storage
-                .add(&Step {
-                    actor_obs: &vec![0.5; envs * 2],
-                    critic_obs: &vec![0.5; envs],
-                    labels: &vec![0.0; envs],
-                    actions: &actions,
-                    log_prob: &log_prob,
-                    mu: &vec![0.0; envs],
-                    sigma: &vec![1.0; envs],
-                    values: &vec![0.0; envs],
-                    rewards: &rewards,
-                    dones: &vec![true; envs],
-                })
-                .unwrap();
-        }
-        storage.compute_returns(&vec![0.0; envs], 0.99, 0.95, true);
+        let storage = one_action_rollout(&[0.1, -0.1, 2.0, -2.0], |a| {
+            if a.abs() < 1.0 { 1.0 } else { -1.0 }
+        });
         let std_after = |min_action_std: f64| {
             let mut rng = Rng::new(0);
             let ac = ActorCritic::new(2, 1, 1, &[8], &[8], 1.0, &mut rng, &dev);
