@@ -3,7 +3,7 @@
 import pytest
 import torch
 
-from unigait.algorithms import PPO, PPOConfig, adaptive_learning_rate, gaussian_kl
+from unigait.algorithms import PPO, PPOConfig, adaptive_learning_rate, bound_loss, gaussian_kl
 from unigait.modules import ActorCritic
 from unigait.storage import RolloutStorage, bootstrap_time_outs, compute_gae
 
@@ -133,3 +133,52 @@ def test_the_std_floor_holds_where_the_update_would_narrow(floor: float) -> None
         assert stats["action_std"] < 0.95
     else:
         assert stats["action_std"] == pytest.approx(0.95, abs=1e-6)
+
+
+def test_bound_loss_on_known_numbers() -> None:
+    # Bound 10: row 1 pays (12 - 10)^2 = 4, row 2 pays (11.5 - 10)^2 = 2.25; mean 3.125.
+    mu = torch.tensor([[12.0, -3.0], [0.0, -11.5]])
+    assert bound_loss(mu, 10.0).item() == pytest.approx(3.125)
+    assert bound_loss(mu, 20.0).item() == 0.0
+
+
+def _mean_after_one_update(coef: float) -> tuple[float, dict[str, float]]:
+    """The actor's mean (5 for every input) after one update on a rollout of equal rewards.
+
+    Equal rewards leave every advantage at 0 and the entropy bonus is off, so only the bound
+    loss (bound 1, weight ``coef``) can move the mean.
+    """
+    torch.manual_seed(0)
+    ac = ActorCritic(6, 5, 1, (8,), (8,), init_noise_std=1.0)
+    last = ac.actor[-1]
+    assert isinstance(last, torch.nn.Linear)
+    with torch.no_grad():
+        last.weight.zero_()
+        last.bias.fill_(5.0)
+    st = _narrowing_rollout(ac)
+    st.rewards.fill_(1.0)
+    st.compute_returns(torch.zeros(8), 0.99, 0.95)
+    cfg = PPOConfig(
+        learning_rate=1e-2,
+        schedule="fixed",
+        entropy_coef=0.0,
+        num_learning_epochs=1,
+        num_mini_batches=1,
+        action_mean_bound=1.0,
+        bound_loss_coef=coef,
+    )
+    stats = PPO(ac, cfg).update(st)
+    with torch.no_grad():
+        mean = float(ac.actor(torch.full((1, 6), 0.5)))
+    return mean, stats
+
+
+def test_the_bound_loss_alone_pulls_an_outlying_mean_in() -> None:
+    free, free_stats = _mean_after_one_update(0.0)
+    assert free == 5.0 and "bound_loss" not in free_stats
+    bounded, stats = _mean_after_one_update(1.0)
+    # (5 - 1)^2 = 16 before the one Adam step. Adam's first step moves each parameter by the
+    # rate (1e-2) against its gradient's sign: the bias, and each zeroed weight by the sign of
+    # its hidden unit, so the mean falls by 1e-2 (1 + sum |h_i|) over the 8 units, < 0.1.
+    assert stats["bound_loss"] == pytest.approx(16.0)
+    assert 4.8 < bounded < 5.0 - 1e-3

@@ -4,6 +4,7 @@ The kill-and-resume run against the real server is ``tests/test_e2e_recipes.py``
 """
 
 import csv
+import dataclasses
 import json
 import re
 from pathlib import Path
@@ -99,8 +100,9 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     assert list(settle.config.policy.actor_hidden_dims) == [256, 128, 64]
     # The terrain recipe inherits the flat recipe's last stage and says what it changes.
     (terrain, explore, stairs, clearance, articulated, per_mode, pace, quad_pace, anticipate) = (
-        load_recipe("unified_terrain").stages
+        load_recipe("unified_terrain").stages[:9]
     )
+    bounded = load_recipe("unified_terrain").stages[9]
     assert terrain.config.policy == settle.config.policy
     assert (
         terrain.config.env.task["rewards"]["weights"]
@@ -145,6 +147,13 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
         "foot_clearance_radius": 0.1,
     }
     assert {**looked, "rewards": quad_pace.config.env.task["rewards"]} == quad_pace.config.env.task
+    # The tenth bounds the mean actions (decision 0031) and changes nothing else.
+    assert bounded.config.env == anticipate.config.env and bounded.carry == "all"
+    assert bounded.config.ppo == dataclasses.replace(
+        anticipate.config.ppo, action_mean_bound=20.0, bound_loss_coef=0.01
+    )
+    assert anticipate.config.ppo.bound_loss_coef == 0.0
+    assert len(load_recipe("unified_terrain").stages) == 10
     # --set applies on top of every stage.
     small = load_recipe("unified_flat", ["env.num_envs=8"])
     assert [s.config.env.num_envs for s in small.stages] == [8, 8, 8]

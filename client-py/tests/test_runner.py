@@ -17,7 +17,8 @@ from unigait.env import TorchVecEnv
 from unigait.env.rsl_rl_env import RslRlVecEnv, rsl_rl_train_cfg
 from unigait.milestones import milestone
 from unigait.model_card import CardInputs, model_card
-from unigait.runners import CheckpointMismatchError, OnPolicyRunner
+from unigait.runners import CheckpointMismatchError, NonFiniteUpdate, OnPolicyRunner
+from unigait.storage import RolloutStorage
 
 
 def test_runner_trains_logs_checkpoints_and_resumes(tmp_path, capsys):
@@ -251,3 +252,63 @@ def test_a_kill_during_a_checkpoint_write_leaves_the_previous_checkpoint_whole(
     monkeypatch.undo()
     after = torch.load(tmp_path / "model_latest.pt", weights_only=False)
     assert after["iteration"] == before["iteration"] == 1
+
+
+def test_the_rollout_extremes_name_the_largest_value_and_where_it_sits():
+    st = RolloutStorage(3, 4, 6, 4, 5, 2, 2)
+    for t in range(3):
+        labels = torch.zeros(4, 2)
+        actor = torch.ones(4, 6)
+        if t == 1:
+            labels[2, 1] = -7.5  # step 1, env 2, column 1
+            actor[3, 4] = math.nan  # NaN counts as infinitely large
+        st.add(
+            actor,
+            torch.zeros(4, 5),
+            labels,
+            torch.zeros(4, 2),
+            torch.zeros(4),
+            torch.zeros(4, 2),
+            torch.ones(4, 2),
+            torch.zeros(4),
+            torch.zeros(4),
+            torch.zeros(4),
+        )
+    largest = st.largest()
+    assert largest["labels"] == (7.5, 1, 2, 1)
+    assert largest["actor_obs"] == (math.inf, 1, 3, 4)
+    assert largest["critic_obs"][0] == 0.0 and largest["mu"][0] == 0.0
+
+
+class _LabelsGoInfinite(FakeSession):
+    """Env 5's labels turn infinite from the third step on (a physics blow-up the server's
+    finiteness check would not see in a finite but overflowing state)."""
+
+    def step(self, actions, *, reward_terms=False):
+        result = super().step(actions, reward_terms=reward_terms)
+        if self.sim.step_count < 3:
+            return result
+        labels = result.labels.copy()
+        labels[5, 0] = math.inf
+        return dataclasses.replace(result, labels=labels)
+
+
+def test_a_non_finite_rollout_stops_the_run_before_the_update(tmp_path):
+    torch.manual_seed(0)
+    cfg = load_config(None, SMALL)
+    runner = OnPolicyRunner(TorchVecEnv(FakeSession(8)), cfg, tmp_path / "clean")
+    row = runner.learn(1)[0]
+    # The extremes go to the log with the column that holds each.
+    assert row["rollout/max_abs/labels"] > 0 and "rollout/max_abs_column/actor_obs" in row
+    assert row["rollout/max_abs/mu"] == max(
+        abs(float(x)) for x in runner.storage.mu.flatten().tolist()
+    )
+
+    bad = OnPolicyRunner(TorchVecEnv(_LabelsGoInfinite(8)), cfg, tmp_path / "bad")
+    before = [p.clone() for p in bad.actor_critic.parameters()]
+    with pytest.raises(NonFiniteUpdate, match=r"labels inf at step \d+ env 5 column 0"):
+        bad.learn(1)
+    assert all(
+        torch.equal(a, b) for a, b in zip(before, bad.actor_critic.parameters(), strict=True)
+    )
+    assert not list((tmp_path / "bad").glob("model_*.pt"))

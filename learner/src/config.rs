@@ -103,6 +103,10 @@ pub struct PpoSection {
     pub normalize_advantage: bool,
     /// Floor of every action dim's std after each Adam step (0: none).
     pub min_action_std: f64,
+    /// |mean action| past which the bound loss pays (0: none).
+    pub action_mean_bound: f64,
+    /// Weight of the bound loss.
+    pub bound_loss_coef: f64,
 }
 
 impl Default for PpoSection {
@@ -124,6 +128,8 @@ impl Default for PpoSection {
             desired_kl: d.desired_kl,
             normalize_advantage: d.normalize_advantage,
             min_action_std: d.min_action_std,
+            action_mean_bound: d.action_mean_bound,
+            bound_loss_coef: d.bound_loss_coef,
         }
     }
 }
@@ -310,6 +316,8 @@ impl TrainConfig {
             desired_kl: p.desired_kl,
             normalize_advantage: p.normalize_advantage,
             min_action_std: p.min_action_std,
+            action_mean_bound: p.action_mean_bound,
+            bound_loss_coef: p.bound_loss_coef,
             // torch's intra-op threads in the Python learner; here, the mini-batch's shares.
             update_threads: usize::try_from(self.runner.update_threads.max(1)).unwrap_or(1),
         }

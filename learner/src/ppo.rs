@@ -42,6 +42,10 @@ pub struct PpoConfig {
     pub normalize_advantage: bool,
     /// Floor of every action dim's std after each Adam step (0: none; decision record 0028).
     pub min_action_std: f64,
+    /// |mean action| past which the bound loss pays (0: no bound loss; decision record 0031).
+    pub action_mean_bound: f64,
+    /// Weight of the bound loss, `mean(sum_i max(|mu_i| - bound, 0)^2)`.
+    pub bound_loss_coef: f64,
     /// Threads sharing each mini-batch's forward and backward passes (1): each takes a slice
     /// of the rows, and their gradients are summed before the clip and the Adam step, so the
     /// update is the one-thread update up to float rounding.
@@ -65,6 +69,8 @@ impl Default for PpoConfig {
             desired_kl: 0.01,
             normalize_advantage: true,
             min_action_std: 0.0,
+            action_mean_bound: 0.0,
+            bound_loss_coef: 0.0,
             update_threads: 1,
         }
     }
@@ -123,6 +129,15 @@ pub fn surrogate_loss(
     let s1 = neg_adv.clone() * ratio.clone();
     let s2 = neg_adv * ratio.clamp(1.0 - clip, 1.0 + clip);
     s1.max_pair(s2).mean()
+}
+
+/// Bound loss: `mean over the batch of sum_i max(|mu_i| - bound, 0)^2`, zero inside the bound.
+pub fn bound_loss(mean: Tensor<2>, bound: f32) -> Tensor<1> {
+    (mean.abs().sub_scalar(bound))
+        .clamp_min(0.0)
+        .square()
+        .sum_dim(1)
+        .mean()
 }
 
 /// Value loss: `mean(max((V - R)^2, (V_old + clamp(V - V_old, -c, c) - R)^2))` when clipped,
@@ -433,7 +448,7 @@ fn share_loss(
     let kl = mean_gaussian_kl(
         col(l.mu_col(), l.actions),
         col(l.sigma_col(), l.actions),
-        mean.detach(),
+        mean.clone().detach(),
         log_std.detach().exp().unsqueeze::<2>(),
     );
     let surrogate = surrogate_loss(
@@ -454,9 +469,13 @@ fn share_loss(
         f64::from(surrogate.clone().into_scalar::<f32>()),
         f64::from(entropy.clone().into_scalar::<f32>()),
     );
-    let loss = (surrogate + v_loss.mul_scalar(cfg.value_loss_coef)
-        - entropy.mul_scalar(cfg.entropy_coef))
-    .mul_scalar(weight);
+    let mut loss =
+        surrogate + v_loss.mul_scalar(cfg.value_loss_coef) - entropy.mul_scalar(cfg.entropy_coef);
+    if cfg.action_mean_bound > 0.0 && cfg.bound_loss_coef > 0.0 {
+        loss =
+            loss + bound_loss(mean, cfg.action_mean_bound as f32).mul_scalar(cfg.bound_loss_coef);
+    }
+    let loss = loss.mul_scalar(weight);
     MiniBatch {
         grads: GradientsParams::from_grads(loss.backward(), ac),
         value_loss: weight * figures.0,
@@ -727,6 +746,52 @@ mod tests {
         assert!(
             (floored - 0.95).abs() < 1e-5,
             "std with a 0.95 floor {floored}"
+        );
+    }
+
+    /// Bound 10: row 1 pays (12 - 10)^2 = 4, row 2 pays (11.5 - 10)^2 = 2.25; mean 3.125.
+    #[test]
+    fn bound_loss_on_known_numbers() {
+        let dev = device();
+        let mu = matrix(vec![12.0, -3.0, 0.0, -11.5], 2, 2, &dev);
+        let at = |b: f32| values(bound_loss(mu.clone(), b)).unwrap()[0];
+        assert!((at(10.0) - 3.125).abs() < 1e-6, "{}", at(10.0));
+        assert_eq!(at(20.0), 0.0);
+    }
+
+    /// Every reward equal: the advantages are 0 and the entropy bonus is off, so only the bound
+    /// loss moves the actor's mean. With no bound it stays put; with a bound below the mean it
+    /// falls towards the bound.
+    #[test]
+    fn the_bound_loss_alone_pulls_an_outlying_mean_in() {
+        let dev = device();
+        let storage = one_action_rollout(&[0.1, -0.1, 2.0, -2.0], |_| 1.0);
+        let x = || matrix(vec![0.5, 0.5], 1, 2, &dev);
+        let mean_after = |coef: f64| {
+            let mut rng = Rng::new(0);
+            let ac = ActorCritic::new(2, 1, 1, &[8], &[8], 1.0, &mut rng, &dev);
+            let before = values(ac.actor.forward(x())).unwrap()[0];
+            let mut ppo = Ppo::new(PpoConfig {
+                adaptive: false,
+                learning_rate: 1e-2,
+                entropy_coef: 0.0,
+                action_mean_bound: 1e-3,
+                bound_loss_coef: coef,
+                ..PpoConfig::default()
+            });
+            let (ac, _) = ppo.update(ac, &storage, &mut rng, &dev);
+            (before, values(ac.actor.forward(x())).unwrap()[0])
+        };
+        let (before, free) = mean_after(0.0);
+        assert!(
+            before.abs() > 0.05,
+            "the fresh mean {before} sits inside the bound"
+        );
+        assert_eq!(free, before);
+        let (_, bounded) = mean_after(1.0);
+        assert!(
+            bounded.abs() < before.abs() - 1e-3,
+            "mean {before} -> {bounded}"
         );
     }
 

@@ -1,7 +1,13 @@
 """Learning algorithms: PPO and the concurrent estimator regression."""
 
 from unigait.algorithms.estimator_learning import EstimatorConfig, EstimatorLearning
-from unigait.algorithms.ppo import PPO, PPOConfig, adaptive_learning_rate, gaussian_kl
+from unigait.algorithms.ppo import (
+    PPO,
+    PPOConfig,
+    adaptive_learning_rate,
+    bound_loss,
+    gaussian_kl,
+)
 
 __all__ = [
     "PPO",
@@ -9,5 +15,6 @@ __all__ = [
     "EstimatorLearning",
     "PPOConfig",
     "adaptive_learning_rate",
+    "bound_loss",
     "gaussian_kl",
 ]

@@ -34,6 +34,11 @@ class PPOConfig:
         min_action_std: Floor of every action dim's std, applied after each Adam step (0: none).
             The biped-only baseline's stage 1 needs it: alone, its std fell from 1.0 to 0.37 and
             exploration with it (docs/src/decisions/0028-action-std-floor.md).
+        action_mean_bound: |mean action| past which the bound loss pays (0: no bound loss).
+        bound_loss_coef: Weight of the bound loss, sum_i max(|mu_i| - bound, 0)^2 averaged over
+            the batch (rl_games' bounds loss). A Gaussian's mean is otherwise unbounded: on
+            stairs the terrain run's means reached 100-155 (targets 25-39 rad from default) and
+            its updates went non-finite (docs/src/decisions/0031-action-mean-bound.md).
     """
 
     num_learning_epochs: int = 5
@@ -50,6 +55,8 @@ class PPOConfig:
     desired_kl: float = 0.01
     normalize_advantage: bool = True
     min_action_std: float = 0.0
+    action_mean_bound: float = 0.0
+    bound_loss_coef: float = 0.0
 
 
 def gaussian_kl(
@@ -75,6 +82,19 @@ def gaussian_kl(
         - 0.5,
         dim=-1,
     )
+
+
+def bound_loss(mu: torch.Tensor, bound: float) -> torch.Tensor:
+    """Mean over the batch of sum_i max(|mu_i| - bound, 0)^2 (zero inside the bound).
+
+    Args:
+        mu: f32 [B, A] mean actions.
+        bound: The soft bound (> 0).
+
+    Returns:
+        f32 scalar.
+    """
+    return (mu.abs() - bound).clamp(min=0.0).square().sum(-1).mean()
 
 
 def adaptive_learning_rate(
@@ -119,7 +139,14 @@ class PPO:
         """Run the epochs; return mean losses, mean KL and the final learning rate."""
         cfg = self.cfg
         ac = self.actor_critic
-        sums = {"value_loss": 0.0, "surrogate_loss": 0.0, "entropy": 0.0, "kl": 0.0}
+        sums = {
+            "value_loss": 0.0,
+            "surrogate_loss": 0.0,
+            "entropy": 0.0,
+            "kl": 0.0,
+            "bound_loss": 0.0,
+        }
+        bounded = cfg.action_mean_bound > 0.0 and cfg.bound_loss_coef > 0.0
         count = 0
         for mb in storage.mini_batches(cfg.num_mini_batches, cfg.num_learning_epochs):
             dist = ac.distribution(mb.actor_obs)
@@ -154,6 +181,10 @@ class PPO:
                 + cfg.value_loss_coef * value_loss
                 - cfg.entropy_coef * entropy.mean()
             )
+            if bounded:
+                b_loss = bound_loss(dist.mean, cfg.action_mean_bound)
+                loss = loss + cfg.bound_loss_coef * b_loss
+                sums["bound_loss"] += b_loss.item()
             self.optimizer.zero_grad()
             loss.backward()
             nn.utils.clip_grad_norm_(ac.parameters(), cfg.max_grad_norm)
@@ -168,6 +199,8 @@ class PPO:
             sums["kl"] += kl
             count += 1
         stats = {k: v / max(count, 1) for k, v in sums.items()}
+        if not bounded:
+            del stats["bound_loss"]
         stats["learning_rate"] = self.learning_rate
         stats["action_std"] = ac.std.mean().item()
         return stats

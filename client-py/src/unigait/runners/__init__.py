@@ -2,9 +2,16 @@
 
 from unigait.runners.on_policy_runner import (
     CheckpointMismatchError,
+    NonFiniteUpdate,
     OnPolicyRunner,
     build_networks,
 )
 from unigait.runners.training import train
 
-__all__ = ["CheckpointMismatchError", "OnPolicyRunner", "build_networks", "train"]
+__all__ = [
+    "CheckpointMismatchError",
+    "NonFiniteUpdate",
+    "OnPolicyRunner",
+    "build_networks",
+    "train",
+]

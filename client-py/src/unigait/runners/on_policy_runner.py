@@ -33,6 +33,30 @@ NETWORK_KEYS = (
 )
 
 
+class NonFiniteUpdate(RuntimeError):
+    """A training iteration produced a non-finite rollout or update (decision record 0031).
+
+    The message names each rollout field's largest magnitude and where it sits (step, env,
+    column), so the run's log says which quantity went first.
+    """
+
+    def __init__(
+        self,
+        iteration: int,
+        phase: str,
+        largest: dict[str, tuple[float, int, int, int]],
+        stats: dict[str, float] | None = None,
+    ) -> None:
+        where = "; ".join(
+            f"{k} {v:.3g} at step {t} env {e} column {c}" for k, (v, t, e, c) in largest.items()
+        )
+        losses = f" (update: {stats})" if stats is not None else ""
+        super().__init__(f"non-finite {phase} at iteration {iteration}{losses}: {where}")
+        self.iteration = iteration
+        self.phase = phase
+        self.largest = largest
+
+
 class ScalarSink(Protocol):
     """Where each iteration's scalars go besides the CSV (TensorBoard, a live view)."""
 
@@ -266,8 +290,19 @@ class OnPolicyRunner:
         return out
 
     def update(self) -> dict[str, float]:
-        """PPO epochs, then the estimator's epochs, on the stored rollout."""
+        """PPO epochs, then the estimator's epochs, on the stored rollout.
+
+        Raises:
+            NonFiniteUpdate: The rollout holds a non-finite value, or the update's losses came
+                out non-finite; the networks are then not to be saved (the last checkpoint is).
+        """
         rc = self.cfg.runner
+        largest = self.storage.largest()
+        extremes = {f"rollout/max_abs/{k}": v[0] for k, v in largest.items()}
+        # Which column holds it: an observation pinned at the clip names its field this way.
+        extremes |= {f"rollout/max_abs_column/{k}": float(v[3]) for k, v in largest.items()}
+        if not all(math.isfinite(v) for v in extremes.values()):
+            raise NonFiniteUpdate(self.iteration + 1, "rollout", largest)
         rollout_threads = torch.get_num_threads()
         if rc.update_threads > 0:
             torch.set_num_threads(rc.update_threads)
@@ -277,7 +312,9 @@ class OnPolicyRunner:
                 stats.update(self.estimator_learning.update(self.storage))
         finally:
             torch.set_num_threads(rollout_threads)
-        return stats
+        if not all(math.isfinite(v) for v in stats.values()):
+            raise NonFiniteUpdate(self.iteration + 1, "update", largest, stats)
+        return {**stats, **extremes}
 
     def learn(self, num_iterations: int) -> list[dict[str, float]]:
         """Train for ``num_iterations`` more iterations; return the logged scalars of each."""

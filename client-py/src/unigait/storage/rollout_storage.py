@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator
 from dataclasses import dataclass
 
@@ -287,3 +288,29 @@ class RolloutStorage:
             for start in range(0, n - batch_size + 1 if n >= batch_size else 1, batch_size):
                 rows = shuffled[start : start + batch_size]
                 yield rows[:, self.label_dim :], rows[:, : self.label_dim]
+
+    def largest(self) -> dict[str, tuple[float, int, int, int]]:
+        """Per field, the largest magnitude stored and where: (|value|, step, env, column).
+
+        A non-finite entry counts as infinitely large (NaN included), so a rollout that would
+        poison the update names its first bad field here rather than as a NaN loss.
+        """
+        fields = {
+            "labels": self.labels,
+            "actor_obs": self.actor_obs,
+            "critic_obs": self.critic_obs,
+            "actions": self.actions,
+            "mu": self.mu,
+            "values": self.values.unsqueeze(-1),
+            "rewards": self.rewards.unsqueeze(-1),
+        }
+        out: dict[str, tuple[float, int, int, int]] = {}
+        for name, x in fields.items():
+            mag = x[: self.step].abs().nan_to_num(nan=math.inf, posinf=math.inf)
+            if mag.numel() == 0:
+                continue
+            flat = int(torch.argmax(mag))
+            t, rest = divmod(flat, mag.shape[1] * mag.shape[2])
+            env, col = divmod(rest, mag.shape[2])
+            out[name] = (float(mag.view(-1)[flat]), t, env, col)
+        return out
