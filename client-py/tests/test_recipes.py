@@ -102,7 +102,7 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     (terrain, explore, stairs, clearance, articulated, per_mode, pace, quad_pace, anticipate) = (
         load_recipe("unified_terrain").stages[:9]
     )
-    bounded = load_recipe("unified_terrain").stages[9]
+    bounded, higher_swing = load_recipe("unified_terrain").stages[9:]
     assert terrain.config.policy == settle.config.policy
     assert (
         terrain.config.env.task["rewards"]["weights"]
@@ -153,7 +153,11 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
         anticipate.config.ppo, action_mean_bound=20.0, bound_loss_coef=0.01
     )
     assert anticipate.config.ppo.bound_loss_coef == 0.0
-    assert len(load_recipe("unified_terrain").stages) == 10
+    # The eleventh raises the clearance target from 8 to 12 cm and keeps the rest.
+    swung = higher_swing.config.env.task
+    assert swung["rewards"] == {**looked["rewards"], "foot_clearance_target": 0.12}
+    assert {**swung, "rewards": looked["rewards"]} == looked
+    assert higher_swing.config.ppo == bounded.config.ppo and higher_swing.carry == "all"
     # --set applies on top of every stage.
     small = load_recipe("unified_flat", ["env.num_envs=8"])
     assert [s.config.env.num_envs for s in small.stages] == [8, 8, 8]
