@@ -436,6 +436,26 @@ impl Learner {
 
     /// The PPO epochs, then the estimator's, on the stored rollout.
     fn update(&mut self) -> Result<Scalars> {
+        let largest = self.storage.largest();
+        let where_ = || {
+            largest
+                .iter()
+                .map(|(k, b)| {
+                    format!(
+                        "{k} {:.3e} at step {} env {} column {}",
+                        b.magnitude, b.step, b.env, b.column
+                    )
+                })
+                .collect::<Vec<_>>()
+                .join("; ")
+        };
+        if largest.iter().any(|(_, b)| !b.magnitude.is_finite()) {
+            return Err(Error::NonFinite(format!(
+                "non-finite rollout at iteration {}: {}",
+                self.iteration + 1,
+                where_()
+            )));
+        }
         let ac = self
             .ac
             .take()
@@ -453,16 +473,34 @@ impl Learner {
             &mut self.update_rng,
             &self.device,
         );
-        self.set_networks(ac, estimator);
-        Ok(vec![
+        let mut out: Scalars = vec![
             ("value_loss".into(), stats.value_loss),
             ("surrogate_loss".into(), stats.surrogate_loss),
             ("entropy".into(), stats.entropy),
             ("kl".into(), stats.kl),
+        ];
+        out.extend(stats.bound_loss.map(|b| ("bound_loss".to_string(), b)));
+        out.extend([
             ("learning_rate".into(), stats.learning_rate),
             ("action_std".into(), stats.action_std),
             ("estimator_loss".into(), estimator_loss),
-        ])
+        ]);
+        if out.iter().any(|(_, v)| !v.is_finite()) {
+            // The networks that came out are not kept: the last checkpoint is the clean state.
+            return Err(Error::NonFinite(format!(
+                "non-finite update at iteration {} ({out:?}): {}",
+                self.iteration + 1,
+                where_()
+            )));
+        }
+        self.set_networks(ac, estimator);
+        for (name, b) in &largest {
+            out.push((format!("rollout/max_abs/{name}"), f64::from(b.magnitude)));
+        }
+        for (name, b) in &largest {
+            out.push((format!("rollout/max_abs_column/{name}"), b.column as f64));
+        }
+        Ok(out)
     }
 
     fn set_networks(&mut self, ac: ActorCritic, estimator: Estimator) {

@@ -59,6 +59,10 @@ pub enum Error {
     /// A run that cannot start or go on.
     #[error("{0}")]
     Run(String),
+    /// A rollout or update with a non-finite value: nothing of the iteration is saved, and the
+    /// run resumes cleanly from its last checkpoint (decision record 0031).
+    #[error("{0}")]
+    NonFinite(String),
     /// A file could not be read or written.
     #[error(transparent)]
     Io(#[from] std::io::Error),

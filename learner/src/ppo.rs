@@ -115,6 +115,8 @@ pub struct UpdateStats {
     pub learning_rate: f64,
     /// Mean action std after the update.
     pub action_std: f64,
+    /// Mean bound loss before each step, when the config has one (decision record 0031).
+    pub bound_loss: Option<f64>,
 }
 
 /// Clipped surrogate: `mean(max(-A r, -A clamp(r, 1 - c, 1 + c)))` with `r = exp(lp - lp_old)`.
@@ -129,6 +131,11 @@ pub fn surrogate_loss(
     let s1 = neg_adv.clone() * ratio.clone();
     let s2 = neg_adv * ratio.clamp(1.0 - clip, 1.0 + clip);
     s1.max_pair(s2).mean()
+}
+
+/// Whether `cfg` adds the bound loss (both its bound and its weight set).
+fn bounded(cfg: &PpoConfig) -> bool {
+    cfg.action_mean_bound > 0.0 && cfg.bound_loss_coef > 0.0
 }
 
 /// Bound loss: `mean over the batch of sum_i max(|mu_i| - bound, 0)^2`, zero inside the bound.
@@ -302,6 +309,7 @@ impl Ppo {
         let first = l.actor_col();
         let mut stats = UpdateStats::default();
         let mut count = 0usize;
+        let mut bound_sum = 0.0;
         for _ in 0..cfg.num_learning_epochs {
             let rows = shuffled(storage, first, l.width(), &rng.permutation(n), device);
             for i in 0..cfg.num_mini_batches {
@@ -322,6 +330,7 @@ impl Ppo {
                 stats.surrogate_loss += part.surrogate_loss;
                 stats.entropy += part.entropy;
                 stats.kl += part.kl;
+                bound_sum += part.bound_loss;
                 count += 1;
                 let mut grads = part.grads;
                 clip_grad_norm(&mut grads, &ac, cfg.max_grad_norm);
@@ -336,6 +345,7 @@ impl Ppo {
         stats.surrogate_loss /= c;
         stats.entropy /= c;
         stats.kl /= c;
+        stats.bound_loss = bounded(&cfg).then_some(bound_sum / c);
         stats.learning_rate = self.learning_rate;
         stats.action_std = f64::from(ac.log_std.val().exp().mean().into_scalar::<f32>());
         (ac, stats)
@@ -358,6 +368,7 @@ struct MiniBatch {
     surrogate_loss: f64,
     entropy: f64,
     kl: f64,
+    bound_loss: f64,
 }
 
 /// The PPO loss of `batch` (its rows: the layout's columns from the actor's) split over
@@ -411,6 +422,7 @@ fn mini_batch(
         total.surrogate_loss += part.surrogate_loss;
         total.entropy += part.entropy;
         total.kl += part.kl;
+        total.bound_loss += part.bound_loss;
         let mut from = part.grads;
         ac.visit(&mut AddGrads {
             into: &mut total.grads,
@@ -471,9 +483,11 @@ fn share_loss(
     );
     let mut loss =
         surrogate + v_loss.mul_scalar(cfg.value_loss_coef) - entropy.mul_scalar(cfg.entropy_coef);
-    if cfg.action_mean_bound > 0.0 && cfg.bound_loss_coef > 0.0 {
-        loss =
-            loss + bound_loss(mean, cfg.action_mean_bound as f32).mul_scalar(cfg.bound_loss_coef);
+    let mut bound_figure = 0.0;
+    if bounded(cfg) {
+        let b_loss = bound_loss(mean, cfg.action_mean_bound as f32);
+        bound_figure = f64::from(b_loss.clone().into_scalar::<f32>());
+        loss = loss + b_loss.mul_scalar(cfg.bound_loss_coef);
     }
     let loss = loss.mul_scalar(weight);
     MiniBatch {
@@ -482,6 +496,7 @@ fn share_loss(
         surrogate_loss: weight * figures.1,
         entropy: weight * figures.2,
         kl: weight * kl,
+        bound_loss: weight * bound_figure,
     }
 }
 
@@ -779,19 +794,28 @@ mod tests {
                 bound_loss_coef: coef,
                 ..PpoConfig::default()
             });
-            let (ac, _) = ppo.update(ac, &storage, &mut rng, &dev);
-            (before, values(ac.actor.forward(x())).unwrap()[0])
+            let (ac, stats) = ppo.update(ac, &storage, &mut rng, &dev);
+            let after = values(ac.actor.forward(x())).unwrap()[0];
+            (before, after, stats.bound_loss)
         };
-        let (before, free) = mean_after(0.0);
+        let (before, free, no_figure) = mean_after(0.0);
         assert!(
             before.abs() > 0.05,
             "the fresh mean {before} sits inside the bound"
         );
         assert_eq!(free, before);
-        let (_, bounded) = mean_after(1.0);
+        assert_eq!(no_figure, None);
+        let (_, bounded, figure) = mean_after(1.0);
         assert!(
             bounded.abs() < before.abs() - 1e-3,
             "mean {before} -> {bounded}"
+        );
+        // (|mu| - 0.001)^2 averaged over the updates: positive, at most the first one's.
+        let figure = figure.expect("a bound loss figure");
+        let first = (f64::from(before.abs()) - 1e-3).powi(2);
+        assert!(
+            figure > 0.0 && figure <= first + 1e-6,
+            "{figure} vs {first}"
         );
     }
 

@@ -120,6 +120,19 @@ pub enum StorageError {
     },
 }
 
+/// The largest magnitude of one stored field, and where it sits.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Largest {
+    /// |value| (infinite for a NaN).
+    pub magnitude: f32,
+    /// The rollout step.
+    pub step: usize,
+    /// The env.
+    pub env: usize,
+    /// The column within the field.
+    pub column: usize,
+}
+
 impl RolloutStorage {
     /// An empty rollout of `num_steps` x `num_envs`.
     pub fn new(num_steps: usize, num_envs: usize, layout: Layout) -> Self {
@@ -180,6 +193,58 @@ impl RolloutStorage {
         self.dones[base..base + n].copy_from_slice(s.dones);
         self.step += 1;
         Ok(())
+    }
+
+    /// Per stored field (labels, actor and critic inputs, actions, means, values, rewards), the
+    /// largest magnitude so far and where it sits; NaN counts as infinite, and the first of equal
+    /// magnitudes wins (the Python learner's `RolloutStorage.largest`, decision record 0031).
+    pub fn largest(&self) -> Vec<(&'static str, Largest)> {
+        let (n, l, width) = (self.num_envs, self.layout, self.layout.width());
+        let rows = self.step * n;
+        let magnitude = |v: f32| if v.is_nan() { f32::INFINITY } else { v.abs() };
+        let scan = |values: &mut dyn Iterator<Item = (usize, usize, f32)>| {
+            let mut best = Largest {
+                magnitude: -1.0,
+                step: 0,
+                env: 0,
+                column: 0,
+            };
+            for (row, column, v) in values {
+                let m = magnitude(v);
+                if m > best.magnitude {
+                    best = Largest {
+                        magnitude: m,
+                        step: row / n,
+                        env: row % n,
+                        column,
+                    };
+                }
+            }
+            best
+        };
+        let blocks = [
+            ("labels", 0, l.labels),
+            ("actor_obs", l.actor_col(), l.actor_obs),
+            ("critic_obs", l.critic_col(), l.critic_obs),
+            ("actions", l.actions_col(), l.actions),
+            ("mu", l.mu_col(), l.actions),
+            ("values", l.value_col(), 1),
+        ];
+        let mut out: Vec<(&'static str, Largest)> = blocks
+            .iter()
+            .map(|&(name, col, w)| {
+                let mut cells = (0..rows)
+                    .flat_map(|r| (0..w).map(move |c| (r, c, self.data[r * width + col + c])));
+                (name, scan(&mut cells))
+            })
+            .collect();
+        let mut rewards = self.rewards[..rows]
+            .iter()
+            .enumerate()
+            .map(|(r, &v)| (r, 0, v));
+        out.push(("rewards", scan(&mut rewards)));
+        out.retain(|(_, b)| b.magnitude >= 0.0);
+        out
     }
 
     /// Start a new rollout.
@@ -258,6 +323,48 @@ mod tests {
             &[40.0, 10.0, 20.0, 30.0, 0.5, -1.0, 0.1, 1.0, 1.0, 1.0, 2.0]
         );
         assert_eq!(&s.data[11 + 9..], &[0.0, 1.0]);
+    }
+
+    /// Three steps of two envs: a label of -7.5 at step 1, env 1 and a NaN in the actor input
+    /// at step 2, env 0, column 1 are found there; NaN counts as infinite.
+    #[test]
+    fn the_largest_value_of_each_field_and_where_it_sits() {
+        let mut s = RolloutStorage::new(3, 2, LAYOUT);
+        for t in 0..3 {
+            let labels = if t == 1 { [0.5, -7.5] } else { [0.5, 0.5] };
+            let actor = if t == 2 {
+                [1.0, f32::NAN, 1.0, 1.0]
+            } else {
+                [1.0; 4]
+            };
+            s.add(&Step {
+                actor_obs: &actor,
+                critic_obs: &[0.0, 0.0],
+                labels: &labels,
+                actions: &[0.5, -2.0],
+                log_prob: &[-1.0, -1.0],
+                mu: &[0.1, 0.1],
+                sigma: &[1.0, 1.0],
+                values: &[1.0, 3.0],
+                rewards: &[0.25, 0.0],
+                dones: &[false, false],
+            })
+            .unwrap();
+        }
+        let largest: std::collections::HashMap<_, _> = s.largest().into_iter().collect();
+        let at = |m: f32, step: usize, env: usize, column: usize| Largest {
+            magnitude: m,
+            step,
+            env,
+            column,
+        };
+        assert_eq!(largest["labels"], at(7.5, 1, 1, 0));
+        assert_eq!(largest["actor_obs"], at(f32::INFINITY, 2, 0, 1));
+        assert_eq!(largest["critic_obs"], at(0.0, 0, 0, 0));
+        assert_eq!(largest["actions"], at(2.0, 0, 1, 0));
+        assert_eq!(largest["values"], at(3.0, 0, 1, 0));
+        assert_eq!(largest["rewards"], at(0.25, 0, 0, 0));
+        assert_eq!(largest.len(), 7);
     }
 
     #[test]

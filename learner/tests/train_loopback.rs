@@ -100,6 +100,13 @@ fn trains_resumes_and_exports_against_the_real_server() {
     assert!(at("biped_pose/rear_feet_up_share") < at("terrain_level/flat"));
     assert!(at("terrain_level/flat") < at("terrain_level/quad"));
     assert!(at("terrain_level/biped") < at("episodes"));
+    // The rollout's extremes close the row, as in the Python learner; no bound loss unless set.
+    assert!(at("estimator_loss") < at("rollout/max_abs/labels"));
+    assert!(at("rollout/max_abs/rewards") < at("rollout/max_abs_column/labels"));
+    assert!(!header.iter().any(|c| c == "bound_loss"));
+    for v in column(&header, &rows, "rollout/max_abs/actor_obs") {
+        assert!(v.is_finite() && v > 0.0 && v <= 100.0, "{v}");
+    }
     assert_eq!(column(&header, &rows, "terrain_level/flat"), [0.0, 0.0]);
     assert_eq!(column(&header, &rows, "terrain_level/quad"), [0.0, 0.0]);
     for row in &rows {
