@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use unigait_sim::env::{VecEnv, VecEnvOptions};
 use unigait_sim::robot::RobotModel;
-use unigait_sim::task::TaskConfig;
+use unigait_sim::task::{TaskConfig, heading_direction};
 use unigait_sim::terrain::Terrain;
 
 use crate::error::EvalError;
@@ -18,7 +18,7 @@ use crate::report::{EvalReport, TraversalCaseReport, TraversalReport, TraversalT
 use crate::runner::{Policies, Rollout, StepObserver, probe};
 use crate::scenario::{
     Mode, PUSH_INTERVAL_S, PUSH_VELOCITY_MPS, Scenario, ScenarioKind, TABLE_VI, TrackingSpec,
-    TraversalSpec, scenario, table_vi_scenarios, tracking_config, traversal_config,
+    TraversalSpec, heading_hold, scenario, table_vi_scenarios, tracking_config, traversal_config,
 };
 use crate::terrain::obstacle_terrain;
 use crate::transition::{run_transition, transition_metrics};
@@ -342,6 +342,21 @@ pub(crate) fn merge_tracking(into: &mut RunTotals, rollout: &Rollout) {
     into.outcomes.merge(&rollout.outcomes());
 }
 
+/// Env `i`'s heading (rad, world yaw of the heading frame's forward axis).
+fn heading_yaw(env: &VecEnv, i: usize) -> f32 {
+    let h = heading_direction(env.robot_state(i).base_rot);
+    h.y.atan2(h.x)
+}
+
+/// The largest yaw-rate command of `mode`'s training range.
+fn yaw_rate_limit(config: &TaskConfig, mode: Mode) -> f32 {
+    let wz = match mode {
+        Mode::Biped => config.commands.biped.wz,
+        Mode::Quad => config.commands.quad.wz,
+    };
+    wz[0].abs().max(wz[1].abs())
+}
+
 pub(crate) fn steps_for(config: &TaskConfig, seconds: f32) -> u32 {
     (seconds / config.policy_dt()).round().max(1.0) as u32
 }
@@ -387,7 +402,23 @@ fn run_traversal(
         let mut ended: Vec<Option<(TraversalEnd, u32)>> = vec![None; envs];
         let mut best = vec![0.0f32; envs];
         let direction = case.direction.signum();
+        // The course is the heading each robot starts with; a trial that drifts off it is
+        // steered back within the mode's yaw-rate range (decision record 0032).
+        let course: Vec<f32> = (0..envs).map(|i| heading_yaw(rollout.env(), i)).collect();
+        let wz_limit = yaw_rate_limit(&options.base_config, spec.mode);
+        let mut commands: Vec<Option<[f32; 3]>> = vec![None; envs];
         while rollout.steps() < steps && ended.iter().any(Option::is_none) {
+            if spec.heading_gain > 0.0 {
+                for (i, command) in commands.iter_mut().enumerate() {
+                    *command = ended[i].is_none().then(|| {
+                        let mut c = rollout.env().env_state(i).command;
+                        let yaw = heading_yaw(rollout.env(), i);
+                        c[2] = heading_hold(course[i], yaw, spec.heading_gain, wz_limit);
+                        c
+                    });
+                }
+                rollout.set_commands(&commands)?;
+            }
             rollout.step(policies)?;
             let step = rollout.steps();
             observer.after_step(k, step, rollout.env());

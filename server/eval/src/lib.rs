@@ -44,5 +44,7 @@ pub use report::{
 pub use runner::{
     BodyContact, EnvProbe, NoObserver, Policies, Rollout, StepObserver, probe, sim_policy_spec,
 };
-pub use scenario::{Mode, Scenario, ScenarioKind, TABLE_VI, scenario, scenario_names, scenarios};
+pub use scenario::{
+    Mode, Scenario, ScenarioKind, TABLE_VI, heading_hold, scenario, scenario_names, scenarios,
+};
 pub use terrain::{Obstacle, obstacle_terrain};

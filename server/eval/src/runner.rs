@@ -304,6 +304,19 @@ impl Rollout {
         Ok(())
     }
 
+    /// Give env `i` the command `commands[i]` where it is `Some`, in the mode it is in (the gait
+    /// clock and mode draws run on, see [`VecEnv::set_mode`]); the rewritten observations
+    /// replace the newest entry of the histories, so the next action already sees them.
+    pub fn set_commands(&mut self, commands: &[Option<[f32; 3]>]) -> Result<(), EvalError> {
+        for (i, command) in commands.iter().enumerate() {
+            let Some(command) = command else { continue };
+            let mode = self.env.env_state(i).mode;
+            self.env.set_mode(i, mode, Some(*command))?;
+        }
+        self.history.replace_newest(&self.env.output().obs);
+        Ok(())
+    }
+
     /// One policy step of every env; ended envs start a fresh history with their new first
     /// observation.
     pub fn step(&mut self, policies: &Policies) -> Result<(), EvalError> {

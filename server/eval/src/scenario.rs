@@ -91,6 +91,17 @@ pub struct TraversalSpec {
     pub time_limit_s: f32,
     /// The Table VI column this reproduces.
     pub table_vi_column: Option<&'static str>,
+    /// Yaw-rate command per radian the heading is off its start (1/s): the operator who kept
+    /// the paper's robots on course; 0 leaves the yaw-rate command at 0 (decision record 0032).
+    pub heading_gain: f32,
+}
+
+/// The yaw-rate command that steers heading `yaw` back to `target` (rad): `gain` times the
+/// error wrapped into [-pi, pi), within +-`limit` (the mode's command range).
+pub fn heading_hold(target: f32, yaw: f32, gain: f32, limit: f32) -> f32 {
+    use std::f32::consts::{PI, TAU};
+    let error = (target - yaw + PI).rem_euclid(TAU) - PI;
+    (gain * error).clamp(-limit, limit)
 }
 
 /// A mode switch on flat ground.
@@ -158,6 +169,9 @@ pub const TABLE_VI: &str = "table_vi";
 const QUAD_SPEED: f32 = 0.8;
 /// Biped traversal speed (m/s), inside the biped command range of training.
 const BIPED_SPEED: f32 = 0.4;
+/// Yaw-rate command per radian of heading error in the traversals (1/s), within the mode's
+/// yaw-rate range (decision record 0032).
+const HEADING_GAIN: f32 = 1.0;
 /// Trials per Table VI column in the paper.
 const TABLE_VI_TRIALS: usize = 20;
 /// Success distance beyond the obstacle's far edge (m).
@@ -264,6 +278,7 @@ fn traversal(
             margin_m: MARGIN_M,
             time_limit_s: traversal_time_limit_s(mode, speed_mps, distance),
             table_vi_column: column,
+            heading_gain: HEADING_GAIN,
         }),
     }
 }
@@ -538,6 +553,30 @@ pub fn tracking_config(base: &TaskConfig, spec: &TrackingSpec) -> Result<TaskCon
 #[cfg(test)]
 mod test {
     use super::*;
+
+    /// Gain 1: 0.3 rad off steers back at 0.3 rad/s; 2 rad off is clamped to the biped's 0.5;
+    /// an error past pi wraps to the short way round (3.0 - (-3.0) = 6.0 is -0.28 rad).
+    #[test]
+    fn the_heading_hold_steers_the_short_way_within_the_range() {
+        let close = |a: f32, b: f32| assert!((a - b).abs() < 1e-5, "{a} vs {b}");
+        close(heading_hold(0.0, -0.3, 1.0, 0.5), 0.3);
+        close(heading_hold(0.0, 0.3, 1.0, 0.5), -0.3);
+        close(heading_hold(0.0, 2.0, 1.0, 0.5), -0.5);
+        close(
+            heading_hold(3.0, -3.0, 1.0, 1.0),
+            6.0 - std::f32::consts::TAU,
+        );
+        close(heading_hold(1.0, 1.0, 1.0, 1.0), 0.0);
+        assert_eq!(heading_hold(0.0, 0.4, 0.0, 1.0), 0.0);
+        for s in table_vi_scenarios() {
+            assert_eq!(
+                traversal_spec(s.name).heading_gain,
+                HEADING_GAIN,
+                "{}",
+                s.name
+            );
+        }
+    }
 
     fn traversal_spec(name: &str) -> TraversalSpec {
         match scenario(name).expect(name).kind {

@@ -1,7 +1,8 @@
 //! Scenario runs with scripted policies: a policy that stands still never crosses anything, a
 //! scripted fall is a failure, transition scenarios switch every env and their bookkeeping adds
 //! up, a switch inside a rollout reaches the next action, the two-policy baseline routes each
-//! env to its mode's policy, and the committed ONNX test policy runs end to end.
+//! env to its mode's policy, the committed ONNX test policy runs end to end, and a traversal
+//! steers each robot back to the heading it started with.
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -9,12 +10,12 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 
 use unigait_eval::{
     EvalError, EvalOptions, Mode, NoObserver, Policies, Rollout, StepObserver, TraversalEnd,
-    evaluate, probe, scenario_names, sim_policy_spec, wilson_interval,
+    evaluate, heading_hold, probe, scenario_names, sim_policy_spec, wilson_interval,
 };
 use unigait_policy::{ConstantPolicy, ObsHistory, OnnxPolicy, Policy, PolicyError, PolicySpec};
 use unigait_sim::env::{VecEnv, VecEnvOptions};
 use unigait_sim::robot::RobotModel;
-use unigait_sim::task::{OBS_DIM, OBSERVATION, TaskConfig, slice_of};
+use unigait_sim::task::{OBS_DIM, OBSERVATION, TaskConfig, heading_direction, slice_of};
 use unigait_sim::terrain::Terrain;
 
 fn options(envs: usize) -> EvalOptions {
@@ -531,4 +532,53 @@ fn push_scenarios_push_and_standing_still_scores_the_do_nothing_baseline() {
         assert!(idle > 0.05, "{name}: the commands ask for motion: {idle}");
         assert!((real - idle).abs() < 0.03, "{name}: {real} vs {idle}");
     }
+}
+
+fn heading_yaw(env: &VecEnv, i: usize) -> f32 {
+    let h = heading_direction(env.robot_state(i).base_rot);
+    h.y.atan2(h.x)
+}
+
+/// After every step of a traversal, checks each running env's yaw-rate command against the
+/// heading hold of the heading the step started from.
+#[derive(Default)]
+struct HeadingCheck {
+    course: Vec<f32>,
+    last_yaw: Vec<f32>,
+    checked: usize,
+    steered: usize,
+}
+
+impl StepObserver for HeadingCheck {
+    fn begin_case(&mut self, _: usize, _: &str, env: &VecEnv) {
+        self.course = (0..env.num_envs()).map(|i| heading_yaw(env, i)).collect();
+        self.last_yaw = self.course.clone();
+    }
+    fn after_step(&mut self, _: usize, _: u32, env: &VecEnv) {
+        for i in 0..env.num_envs() {
+            let e = env.env_state(i);
+            if e.episode_step > 0 {
+                // The quad's yaw-rate range is +-1 rad/s; the gain is 1.
+                let expected = heading_hold(self.course[i], self.last_yaw[i], 1.0, 1.0);
+                assert!(
+                    (e.command[2] - expected).abs() < 1e-6,
+                    "env {i}: {} vs {expected}",
+                    e.command[2]
+                );
+                assert_eq!(e.command[0], 0.8, "the forward command stays");
+                self.checked += 1;
+                self.steered += usize::from(e.command[2] != 0.0);
+            }
+            self.last_yaw[i] = heading_yaw(env, i);
+        }
+    }
+}
+
+#[test]
+fn a_traversal_steers_each_robot_back_to_its_starting_heading() {
+    let mut check = HeadingCheck::default();
+    evaluate("flat_quad", &stand_still(), &options(2), &mut check).expect("flat_quad");
+    assert!(check.checked > 1000, "{} checks", check.checked);
+    // A robot standing on its four feet turns by float noise: every command steers a little.
+    assert!(check.steered > 0, "no command ever steered");
 }
