@@ -6,7 +6,7 @@ use std::f32::consts::TAU;
 
 use common::*;
 use unigait_sim::prelude::*;
-use unigait_sim::task::{OBSERVATION, PRIVILEGED, slice_of};
+use unigait_sim::task::{OBSERVATION, PRIVILEGED, heading_direction, slice_of, to_heading_frame};
 
 fn obs_slice(out: &StepOutput, env: usize, name: &str) -> Vec<f32> {
     let (offset, size) = slice_of(&OBSERVATION, name).expect("known slice");
@@ -270,5 +270,55 @@ window_steps = 16
     let mut fixed = batch(calm_config("[modes]\nbiped_probability = 1.0\n"), n, 0, 1);
     for _ in 0..4 {
         assert_eq!(fixed.step(&zeros).expect("step").upright_pitch, 1.4);
+    }
+}
+
+/// `rewards.biped_tracking_lin_vel_sharpness` reaches the biped's velocity term: the same robots,
+/// held upright 2 m up and falling freely for one step, are paid exp(-k |v* - v|^2) with k = 10
+/// where the default k = 4 pays more, by exactly exp(-6 |v* - v|^2).
+#[test]
+fn the_biped_velocity_kernel_takes_its_sharpness_from_the_config() {
+    use rapier3d::math::{Pose, Rotation, Vec3};
+    let n = 4;
+    let model = RobotModel::go2();
+    let q: [f32; NUM_JOINTS] = std::array::from_fn(|j| model.config.default_joint_pos[j]);
+    let zeros = vec![0.0; n * NUM_JOINTS];
+    let lin = RewardTerm::BipedTrackingLinVel as usize;
+    let paid = |extra: &str| {
+        let mut env = batch(
+            calm_config(&format!("[modes]\nbiped_probability = 1.0\n{extra}")),
+            n,
+            0,
+            1,
+        );
+        for i in 0..n {
+            let p = env.robot_state(i).base_pos;
+            let base = Pose::from_parts(Vec3::new(p.x, p.y, 2.0), Rotation::from_rotation_y(1.55));
+            env.teleport_env(i, base, &q);
+        }
+        let out = env.step(&zeros).expect("step").clone();
+        (0..n)
+            .map(|i| {
+                let s = env.robot_state(i);
+                let v = to_heading_frame(heading_direction(s.base_rot), s.base_linvel);
+                let c = env.env_state(i).command;
+                let e2 = (c[0] - v.x).powi(2) + (c[1] - v.y).powi(2);
+                (out.reward_terms[i * RewardTerm::COUNT + lin], e2)
+            })
+            .collect::<Vec<_>>()
+    };
+    let default = paid("");
+    let steep = paid("[rewards]\nbiped_tracking_lin_vel_sharpness = 10.0\n");
+    for ((d, e2), (s, e2_again)) in default.iter().zip(&steep) {
+        assert!(
+            (e2 - e2_again).abs() < 1e-6,
+            "the same motion: {e2} vs {e2_again}"
+        );
+        assert!(*d > 0.0, "upright and paid");
+        let want = d * (-6.0 * e2).exp();
+        assert!(
+            (s - want).abs() <= 1e-6 * d.max(1e-3),
+            "{s} vs {want} (k = 4 paid {d})"
+        );
     }
 }

@@ -288,6 +288,11 @@ pub struct RewardParams {
     /// k of the foot clearance reward exp(-k error). Default 100 (Eq. 4 and 6); a steeper
     /// kernel makes a low swing cost more (decision record 0025).
     pub foot_clearance_sharpness: f32,
+    /// k of `quad_tracking_lin_vel`, exp(-k |v*_xy - v_xy|^2). Default 4 (the paper's).
+    pub quad_tracking_lin_vel_sharpness: f32,
+    /// k of `biped_tracking_lin_vel`. Default 4; a steeper kernel prices a shortfall the default
+    /// pays 94% for at 0.12 m/s (the terrain recipe's stage 13).
+    pub biped_tracking_lin_vel_sharpness: f32,
     /// Sideways reach per radian of hip abduction (m/rad) at which `biped_sideways_reach` pays
     /// in full. Default 0.1: a foot about 8 cm ahead of or behind its hip (0.30 on four legs at
     /// the default pose).
@@ -364,6 +369,8 @@ impl Default for RewardParams {
             foot_clearance_target: 0.08,
             foot_clearance_radius: 0.02,
             foot_clearance_sharpness: 100.0,
+            quad_tracking_lin_vel_sharpness: 4.0,
+            biped_tracking_lin_vel_sharpness: 4.0,
             sideways_reach_target: 0.1,
             soft_joint_limit: 0.9,
             contact_threshold: 1.0,

@@ -190,6 +190,18 @@ impl TaskConfig {
             1.0e5,
         )?;
         check(
+            "rewards.quad_tracking_lin_vel_sharpness",
+            w.quad_tracking_lin_vel_sharpness,
+            0.1,
+            1.0e3,
+        )?;
+        check(
+            "rewards.biped_tracking_lin_vel_sharpness",
+            w.biped_tracking_lin_vel_sharpness,
+            0.1,
+            1.0e3,
+        )?;
+        check(
             "rewards.sideways_reach_target",
             w.sideways_reach_target,
             1e-3,

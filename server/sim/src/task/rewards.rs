@@ -157,9 +157,9 @@ pub fn cost_dof_pos_limits(
         .count() as f32
 }
 
-/// exp(-4 |v*_xy - v_xy|^2), in the heading frame.
-pub fn reward_tracking_lin_vel(cmd: [f32; 2], v: Vec2) -> f32 {
-    (-TRACKING_SHARPNESS * ((cmd[0] - v.x).powi(2) + (cmd[1] - v.y).powi(2))).exp()
+/// exp(-k |v*_xy - v_xy|^2) in the heading frame; the paper's k is 4 ([`TRACKING_SHARPNESS`]).
+pub fn reward_tracking_lin_vel(cmd: [f32; 2], v: Vec2, sharpness: f32) -> f32 {
+    (-sharpness * ((cmd[0] - v.x).powi(2) + (cmd[1] - v.y).powi(2))).exp()
 }
 
 /// exp(-4 (w*_z - w_z)^2).
@@ -308,9 +308,14 @@ pub fn raw_terms(
             RewardTerm::Torques => cost_torques(&x.torques),
             RewardTerm::HipPos => cost_hip_pos(&x.q, &k.default_q, &k.hips),
             RewardTerm::DofPosLimits => cost_dof_pos_limits(&x.q, &k.soft_lower, &k.soft_upper),
-            RewardTerm::QuadTrackingLinVel | RewardTerm::BipedTrackingLinVel => {
-                reward_tracking_lin_vel(cmd_xy, x.heading_linvel)
+            RewardTerm::QuadTrackingLinVel => {
+                reward_tracking_lin_vel(cmd_xy, x.heading_linvel, r.quad_tracking_lin_vel_sharpness)
             }
+            RewardTerm::BipedTrackingLinVel => reward_tracking_lin_vel(
+                cmd_xy,
+                x.heading_linvel,
+                r.biped_tracking_lin_vel_sharpness,
+            ),
             RewardTerm::QuadTrackingAngVel | RewardTerm::BipedTrackingAngVel => {
                 reward_tracking_ang_vel(x.command[2], x.yaw_rate)
             }

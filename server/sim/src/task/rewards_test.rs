@@ -72,10 +72,14 @@ fn hip_position_and_limits() {
 
 #[test]
 fn tracking_and_posture_rewards() {
-    // |(1, 0) - (0.5, 0.5)|^2 = 0.5 -> exp(-2).
+    // |(1, 0) - (0.5, 0.5)|^2 = 0.5 -> exp(-4 * 0.5) with the paper's k, exp(-10 * 0.5) with 10.
     close(
-        reward_tracking_lin_vel([1.0, 0.0], Vec2::new(0.5, 0.5)),
+        reward_tracking_lin_vel([1.0, 0.0], Vec2::new(0.5, 0.5), TRACKING_SHARPNESS),
         (-2.0f32).exp(),
+    );
+    close(
+        reward_tracking_lin_vel([1.0, 0.0], Vec2::new(0.5, 0.5), 10.0),
+        (-5.0f32).exp(),
     );
     close(reward_tracking_ang_vel(0.5, 0.0), (-1.0f32).exp());
     // (0.3 - 0.2)^2 = 0.01 -> exp(-0.02).
