@@ -109,6 +109,15 @@ class Sway:
             self.peak_hz = np.fft.rfftfreq(x.shape[0], dt)[1:][power[1:].argmax(0)]
 
 
+def yaw_kernel(error: torch.Tensor) -> float:
+    """Mean of the yaw-rate tracking reward's kernel, exp(-4 e^2), over the measured steps.
+
+    Computed on the error as measured and again with its mean (the bias) taken out, it tells
+    what the bias costs the reward: under the step-to-step noise of a sampled policy, little.
+    """
+    return float(torch.exp(-4.0 * error.pow(2)).mean())
+
+
 class FrontLegReach:
     """How far a front foot moves sideways (heading frame) per radian of its leg's joints.
 
@@ -146,10 +155,18 @@ def probe(
     steps: int,
     settle: int,
     seed: int,
+    sampled: bool = False,
 ) -> str:
-    """One run at ``command`` (vx, vy, wz): the line of figures the module docstring lists."""
+    """One run at ``command`` (vx, vy, wz): the line of figures the module docstring lists.
+
+    ``sampled`` draws each action from the policy's Gaussian (its learned std), as training's
+    rollouts do, instead of taking its mean: a gait can differ between the two.
+    """
     vx, vy, wz = command
     policy, dims, engine = load_policy(checkpoint)
+    std = torch.load(checkpoint, map_location="cpu", weights_only=False)["actor_critic"]["log_std"]
+    std = std.exp() if sampled else torch.zeros_like(std)
+    generator = torch.Generator().manual_seed(seed)
     on_engine = f'[physics]\nengine = "{engine}"\n'  # the one it trained on (decision 0026)
     with LocalServer() as server:
         task = overrides(vx, vy, wz) + on_engine
@@ -168,6 +185,7 @@ def probe(
         for t in range(steps):
             with torch.no_grad():
                 actions = policy(history.flat.view(envs, 3, -1))
+                actions = actions + std * torch.randn(actions.shape, generator=generator)
             out = env.step(actions)
             history.push(out.obs, out.dones)
             alive &= ~out.terminated
@@ -203,7 +221,9 @@ def probe(
         f"forward {v[:, 0].mean():+.3f} m/s, left {v[:, 1].mean():+.3f} m/s, "
         f"|v| {v.norm(dim=1).mean():.3f} m/s, error {torch.cat(error).mean():.3f} m/s "
         f"(of the envs' mean velocity {(env_mean - target).norm(dim=1).mean():.3f}), "
-        f"yaw rate {w.mean():+.3f} rad/s (error {(w - wz).abs().mean():.3f}), "
+        f"yaw rate {w.mean():+.3f} rad/s (error {(w - wz).abs().mean():.3f}; "
+        f"kernel exp(-4 e^2) {yaw_kernel(w - wz):.3f}, without the bias "
+        f"{yaw_kernel(w - w.mean()):.3f}), "
         f"sway forward {sway.rms[0]:.3f} / left {sway.rms[1]:.3f} m/s rms "
         f"(left's strongest at {sway.peak_hz[1]:.1f} Hz), "
         f"tilt rate {torch.cat(tilt).pow(2).mean().sqrt():.2f} rad/s rms, "
@@ -226,9 +246,12 @@ def main() -> None:
     p.add_argument("--steps", type=int, default=400, help="policy steps (50 per second)")
     p.add_argument("--settle", type=int, default=150, help="steps before measuring")
     p.add_argument("--seed", type=int, default=5)
+    p.add_argument("--sampled", action="store_true", help="actions drawn with the policy's std")
     a = p.parse_args()
     for vx in a.vx:
-        print(probe(a.checkpoint, (vx, a.vy, a.wz), a.envs, a.steps, a.settle, a.seed), flush=True)
+        command = (vx, a.vy, a.wz)
+        line = probe(a.checkpoint, command, a.envs, a.steps, a.settle, a.seed, a.sampled)
+        print(line, flush=True)
 
 
 if __name__ == "__main__":
