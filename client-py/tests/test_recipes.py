@@ -102,7 +102,7 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     (terrain, explore, stairs, clearance, articulated, per_mode, pace, quad_pace, anticipate) = (
         load_recipe("unified_terrain").stages[:9]
     )
-    bounded, higher_swing, heading, kernel = load_recipe("unified_terrain").stages[9:]
+    bounded, higher_swing, heading, kernel, mirror = load_recipe("unified_terrain").stages[9:]
     assert terrain.config.policy == settle.config.policy
     assert (
         terrain.config.env.task["rewards"]["weights"]
@@ -167,6 +167,10 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     steep = kernel.config.env.task["rewards"]
     assert steep == {**turned, "biped_tracking_lin_vel_sharpness": 10.0}
     assert kernel.config.ppo == bounded.config.ppo and kernel.carry == "all"
+    # The fourteenth adds the mirror loss (decision 0033) and changes nothing else.
+    assert mirror.config.env == kernel.config.env and mirror.carry == "all"
+    assert mirror.config.ppo == dataclasses.replace(kernel.config.ppo, mirror_loss_coef=0.2)
+    assert kernel.config.ppo.mirror_loss_coef == 0.0
     # --set applies on top of every stage.
     small = load_recipe("unified_flat", ["env.num_envs=8"])
     assert [s.config.env.num_envs for s in small.stages] == [8, 8, 8]

@@ -107,6 +107,8 @@ pub struct PpoSection {
     pub action_mean_bound: f64,
     /// Weight of the bound loss.
     pub bound_loss_coef: f64,
+    /// Weight of the mirror loss (0: none; decision record 0033).
+    pub mirror_loss_coef: f64,
 }
 
 impl Default for PpoSection {
@@ -130,6 +132,7 @@ impl Default for PpoSection {
             min_action_std: d.min_action_std,
             action_mean_bound: d.action_mean_bound,
             bound_loss_coef: d.bound_loss_coef,
+            mirror_loss_coef: d.mirror_loss_coef,
         }
     }
 }
@@ -318,6 +321,7 @@ impl TrainConfig {
             min_action_std: p.min_action_std,
             action_mean_bound: p.action_mean_bound,
             bound_loss_coef: p.bound_loss_coef,
+            mirror_loss_coef: p.mirror_loss_coef,
             // torch's intra-op threads in the Python learner; here, the mini-batch's shares.
             update_threads: usize::try_from(self.runner.update_threads.max(1)).unwrap_or(1),
         }

@@ -8,12 +8,13 @@ use std::time::{Duration, Instant};
 
 use burn::module::Module;
 use burn::prelude::*;
-use unigait_client::{Client, Session, StepStream, v1};
+use unigait_client::{Client, Session, Spec, StepStream, v1};
 
 use crate::checkpoint::{self, Blob, Checkpoint, Header};
 use crate::config::TrainConfig;
 use crate::env::{Dims, Ended, EpisodeStats, ObservationHistory, StepData};
 use crate::gae::bootstrap_time_outs;
+use crate::mirror::ActorMirror;
 use crate::nets::{self, ActorCritic, Estimator, Mlp, matrix};
 use crate::ppo::{EstimatorLearning, Ppo};
 use crate::rng::Rng;
@@ -59,6 +60,8 @@ pub struct Envs {
     pub episode_length_s: f64,
     /// The physics engine the session steps in ("" from a server that does not say).
     pub physics_engine: String,
+    /// The session's spec.
+    pub spec: Spec,
     terrain_stats: TerrainLevelStats,
     biped_pose: BipedPoseStats,
     last: StepData,
@@ -83,6 +86,7 @@ impl Envs {
         let physics_engine = spec.0.physics_engine.clone();
         Ok(Self {
             physics_engine,
+            spec: spec.clone(),
             terrain_stats: TerrainLevelStats::new(&env_terrain_types(&spec.0.terrain, n)),
             biped_pose: BipedPoseStats::from_spec(&spec)?,
             history: ObservationHistory::new(&last.obs, history_length, dims.obs),
@@ -160,6 +164,11 @@ fn infer(mlp: &Mlp, x: Vec<f32>, rows: usize, cols: usize, device: &Device) -> R
 }
 
 impl Learner {
+    /// Give the PPO update the mirror maps its mirror loss needs (decision record 0033).
+    pub fn set_mirror(&mut self, mirror: ActorMirror) {
+        self.ppo.set_mirror(mirror);
+    }
+
     /// Fresh networks for `dims` and `num_envs`, seeded by `cfg.runner.seed`.
     pub fn new(cfg: TrainConfig, dims: Dims, num_envs: usize) -> Self {
         let device = nets::device();
@@ -480,6 +489,7 @@ impl Learner {
             ("kl".into(), stats.kl),
         ];
         out.extend(stats.bound_loss.map(|b| ("bound_loss".to_string(), b)));
+        out.extend(stats.mirror_loss.map(|m| ("mirror_loss".to_string(), m)));
         out.extend([
             ("learning_rate".into(), stats.learning_rate),
             ("action_std".into(), stats.action_std),

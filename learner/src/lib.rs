@@ -14,6 +14,7 @@ pub mod gae;
 pub mod learner;
 pub mod log;
 pub mod milestone;
+pub mod mirror;
 pub mod nets;
 pub mod onnx;
 pub mod ppo;

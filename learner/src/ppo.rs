@@ -6,6 +6,7 @@ use burn::module::{Module, ModuleVisitor, Param};
 use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::prelude::*;
 
+use crate::mirror::{ActorMirror, mirror_loss};
 use crate::nets::{self, ActorCritic, Estimator, matrix};
 use crate::rng::Rng;
 use crate::schedule::adaptive_learning_rate;
@@ -46,6 +47,9 @@ pub struct PpoConfig {
     pub action_mean_bound: f64,
     /// Weight of the bound loss, `mean(sum_i max(|mu_i| - bound, 0)^2)`.
     pub bound_loss_coef: f64,
+    /// Weight of the mirror loss, `mean((mu(M x) - M mu(x))^2)` (0: none; decision record
+    /// 0033). It needs the mirror maps: [`Ppo::set_mirror`].
+    pub mirror_loss_coef: f64,
     /// Threads sharing each mini-batch's forward and backward passes (1): each takes a slice
     /// of the rows, and their gradients are summed before the clip and the Adam step, so the
     /// update is the one-thread update up to float rounding.
@@ -71,6 +75,7 @@ impl Default for PpoConfig {
             min_action_std: 0.0,
             action_mean_bound: 0.0,
             bound_loss_coef: 0.0,
+            mirror_loss_coef: 0.0,
             update_threads: 1,
         }
     }
@@ -117,6 +122,8 @@ pub struct UpdateStats {
     pub action_std: f64,
     /// Mean bound loss before each step, when the config has one (decision record 0031).
     pub bound_loss: Option<f64>,
+    /// Mean mirror loss before each step, when the config has one (decision record 0033).
+    pub mirror_loss: Option<f64>,
 }
 
 /// Clipped surrogate: `mean(max(-A r, -A clamp(r, 1 - c, 1 + c)))` with `r = exp(lp - lp_old)`.
@@ -269,6 +276,7 @@ pub struct Ppo {
     /// The current learning rate.
     pub learning_rate: f64,
     optimizer: ModuleOptimizer,
+    mirror: Option<ActorMirror>,
 }
 
 impl Ppo {
@@ -278,7 +286,20 @@ impl Ppo {
             learning_rate: cfg.learning_rate,
             cfg,
             optimizer: adam(),
+            mirror: None,
         }
+    }
+
+    /// The mirror maps the mirror loss needs (from the session's spec).
+    pub fn set_mirror(&mut self, mirror: ActorMirror) {
+        self.mirror = Some(mirror);
+    }
+
+    /// The mirror the update uses: set and weighted.
+    fn active_mirror(&self) -> Option<&ActorMirror> {
+        self.mirror
+            .as_ref()
+            .filter(|_| self.cfg.mirror_loss_coef > 0.0)
     }
 
     /// The optimiser's state, for a checkpoint.
@@ -310,13 +331,15 @@ impl Ppo {
         let mut stats = UpdateStats::default();
         let mut count = 0usize;
         let mut bound_sum = 0.0;
+        let mut mirror_sum = 0.0;
+        let mirror = self.active_mirror().cloned();
         for _ in 0..cfg.num_learning_epochs {
             let rows = shuffled(storage, first, l.width(), &rng.permutation(n), device);
             for i in 0..cfg.num_mini_batches {
                 let batch = rows
                     .clone()
                     .slice([i * size..(i + 1) * size, 0..l.width() - first]);
-                let part = mini_batch(&ac, batch, storage, &cfg, device);
+                let part = mini_batch(&ac, batch, storage, &cfg, mirror.as_ref(), device);
                 if cfg.adaptive && cfg.desired_kl > 0.0 {
                     self.learning_rate = adaptive_learning_rate(
                         self.learning_rate,
@@ -331,6 +354,7 @@ impl Ppo {
                 stats.entropy += part.entropy;
                 stats.kl += part.kl;
                 bound_sum += part.bound_loss;
+                mirror_sum += part.mirror_loss;
                 count += 1;
                 let mut grads = part.grads;
                 clip_grad_norm(&mut grads, &ac, cfg.max_grad_norm);
@@ -346,6 +370,7 @@ impl Ppo {
         stats.entropy /= c;
         stats.kl /= c;
         stats.bound_loss = bounded(&cfg).then_some(bound_sum / c);
+        stats.mirror_loss = mirror.is_some().then_some(mirror_sum / c);
         stats.learning_rate = self.learning_rate;
         stats.action_std = f64::from(ac.log_std.val().exp().mean().into_scalar::<f32>());
         (ac, stats)
@@ -369,6 +394,7 @@ struct MiniBatch {
     entropy: f64,
     kl: f64,
     bound_loss: f64,
+    mirror_loss: f64,
 }
 
 /// The PPO loss of `batch` (its rows: the layout's columns from the actor's) split over
@@ -379,6 +405,7 @@ fn mini_batch(
     batch: Tensor<2>,
     storage: &RolloutStorage,
     cfg: &PpoConfig,
+    mirror: Option<&ActorMirror>,
     device: &Device,
 ) -> MiniBatch {
     let rows = batch.dims()[0];
@@ -396,7 +423,7 @@ fn mini_batch(
                 let ac = ac.clone().fork(device);
                 let part = batch.clone().slice([a..b, 0..batch.dims()[1]]);
                 let weight = (b - a) as f64 / rows as f64;
-                scope.spawn(move || share_loss(&ac, part, storage, cfg, weight))
+                scope.spawn(move || share_loss(&ac, part, storage, cfg, mirror, weight))
             })
             .collect();
         let (a, b) = bounds[0];
@@ -406,6 +433,7 @@ fn mini_batch(
             first,
             storage,
             cfg,
+            mirror,
             (b - a) as f64 / rows as f64,
         )];
         // A panic in a share is a bug in the update: the same code as the first share's.
@@ -423,6 +451,7 @@ fn mini_batch(
         total.entropy += part.entropy;
         total.kl += part.kl;
         total.bound_loss += part.bound_loss;
+        total.mirror_loss += part.mirror_loss;
         let mut from = part.grads;
         ac.visit(&mut AddGrads {
             into: &mut total.grads,
@@ -439,6 +468,7 @@ fn share_loss(
     rows: Tensor<2>,
     storage: &RolloutStorage,
     cfg: &PpoConfig,
+    mirror: Option<&ActorMirror>,
     weight: f64,
 ) -> MiniBatch {
     let l = storage.layout;
@@ -448,7 +478,8 @@ fn share_loss(
             .slice([0..rows.dims()[0], c - first..c - first + w])
     };
     let vec = |c: usize| col(c, 1).squeeze_dim::<1>(1);
-    let mean = ac.actor.forward(col(l.actor_col(), l.actor_obs));
+    let actor_obs = col(l.actor_col(), l.actor_obs);
+    let mean = ac.actor.forward(actor_obs.clone());
     let log_std = ac.log_std.val();
     let lp = nets::log_prob(
         col(l.actions_col(), l.actions),
@@ -485,9 +516,19 @@ fn share_loss(
         surrogate + v_loss.mul_scalar(cfg.value_loss_coef) - entropy.mul_scalar(cfg.entropy_coef);
     let mut bound_figure = 0.0;
     if bounded(cfg) {
-        let b_loss = bound_loss(mean, cfg.action_mean_bound as f32);
+        let b_loss = bound_loss(mean.clone(), cfg.action_mean_bound as f32);
         bound_figure = f64::from(b_loss.clone().into_scalar::<f32>());
         loss = loss + b_loss.mul_scalar(cfg.bound_loss_coef);
+    }
+    let mut mirror_figure = 0.0;
+    if let Some(m) = mirror {
+        let device = actor_obs.device();
+        let mirrored = ac
+            .actor
+            .forward(actor_obs.matmul(m.actor_obs.matrix(&device)));
+        let m_loss = mirror_loss(mean, mirrored, m.actions.matrix(&device));
+        mirror_figure = f64::from(m_loss.clone().into_scalar::<f32>());
+        loss = loss + m_loss.mul_scalar(cfg.mirror_loss_coef);
     }
     let loss = loss.mul_scalar(weight);
     MiniBatch {
@@ -497,6 +538,7 @@ fn share_loss(
         entropy: weight * figures.2,
         kl: weight * kl,
         bound_loss: weight * bound_figure,
+        mirror_loss: weight * mirror_figure,
     }
 }
 
@@ -772,6 +814,84 @@ mod tests {
         let at = |b: f32| values(bound_loss(mu.clone(), b)).unwrap()[0];
         assert!((at(10.0) - 3.125).abs() < 1e-6, "{}", at(10.0));
         assert_eq!(at(20.0), 0.0);
+    }
+
+    /// Every reward equal, so the advantages are 0, and no entropy bonus: only the mirror loss
+    /// moves the actor. Its map swaps the two inputs and the two actions; after a few updates
+    /// the actor answers a swapped input with the swapped action, where before it did not.
+    #[test]
+    fn the_mirror_loss_alone_makes_the_actor_symmetric() {
+        use crate::mirror::{ActorMirror, SignedPermutation};
+        let dev = device();
+        let layout = Layout {
+            labels: 1,
+            actor_obs: 2,
+            history: 1,
+            critic_obs: 1,
+            actions: 2,
+        };
+        let (steps, envs) = (4, 64);
+        let mut storage = RolloutStorage::new(steps, envs, layout);
+        let mut rng = Rng::new(3);
+        for _ in 0..steps {
+            let obs: Vec<f32> = (0..envs * 2).map(|_| rng.normal()).collect();
+            storage
+                .add(&Step {
+                    actor_obs: &obs,
+                    critic_obs: &vec![0.5; envs],
+                    labels: &vec![0.0; envs],
+                    actions: &vec![0.0; envs * 2],
+                    log_prob: &vec![-1.837_877; envs],
+                    mu: &vec![0.0; envs * 2],
+                    sigma: &vec![1.0; envs * 2],
+                    values: &vec![0.0; envs],
+                    rewards: &vec![1.0; envs],
+                    dones: &vec![true; envs],
+                })
+                .unwrap();
+        }
+        storage.compute_returns(&vec![0.0; envs], 0.99, 0.95, true);
+        let swap = SignedPermutation {
+            index: vec![1, 0],
+            sign: vec![1.0, 1.0],
+        };
+        let mirror = ActorMirror {
+            actor_obs: swap.clone(),
+            actions: swap,
+        };
+        let probe: Vec<f32> = (0..64).map(|_| rng.normal()).collect();
+        let asymmetry = |ac: &ActorCritic| {
+            let x = matrix(probe.clone(), 32, 2, &dev);
+            let m = mirror.actions.matrix(&dev);
+            let mirrored = ac.actor.forward(x.clone().matmul(m.clone()));
+            values(mirror_loss(ac.actor.forward(x), mirrored, m)).unwrap()[0]
+        };
+        let mut ac = ActorCritic::new(2, 1, 2, &[16], &[8], 1.0, &mut Rng::new(0), &dev);
+        let before = asymmetry(&ac);
+        let mut ppo = Ppo::new(PpoConfig {
+            adaptive: false,
+            learning_rate: 1e-2,
+            entropy_coef: 0.0,
+            mirror_loss_coef: 1.0,
+            ..PpoConfig::default()
+        });
+        let (free, stats) = ppo.update(ac.clone(), &storage, &mut rng, &dev);
+        assert!(stats.mirror_loss.is_none(), "no maps, no mirror term");
+        assert_eq!(
+            asymmetry(&free),
+            before,
+            "no mirror term, no change to the actor"
+        );
+        ppo.set_mirror(mirror.clone());
+        let mut figure = None;
+        for _ in 0..10 {
+            let (next, stats) = ppo.update(ac, &storage, &mut rng, &dev);
+            ac = next;
+            figure = stats.mirror_loss;
+        }
+        assert!(figure.is_some_and(|f| f > 0.0), "{figure:?}");
+        let after = asymmetry(&ac);
+        assert!(before > 1e-3 && after < 0.1 * before, "{before} -> {after}");
     }
 
     /// Every reward equal: the advantages are 0 and the entropy bonus is off, so only the bound

@@ -20,6 +20,7 @@ use crate::config::{TrainConfig, engine_overrides, merged, set_line};
 use crate::learner::{Envs, Learner, Scalars, session_config};
 use crate::log::ProgressLog;
 use crate::milestone::{self, load_milestone, milestones_file};
+use crate::mirror::ActorMirror;
 use crate::onnx::export_policy;
 use crate::recipe::{Recipe, Stage, Start};
 use crate::tensorboard::EventWriter;
@@ -296,6 +297,12 @@ async fn train_stage(
 ) -> Result<(PathBuf, u64)> {
     let save_interval = cfg.runner.save_interval;
     let mut learner = Learner::new(cfg, envs.dims, envs.num_envs);
+    if learner.cfg.ppo.mirror_loss_coef > 0.0 {
+        learner.set_mirror(ActorMirror::from_spec(
+            &envs.spec,
+            envs.dims.history_length,
+        )?);
+    }
     if !envs.physics_engine.is_empty() {
         learner.physics_engine = envs.physics_engine.clone();
     }

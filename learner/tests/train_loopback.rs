@@ -118,6 +118,27 @@ fn trains_resumes_and_exports_against_the_real_server() {
         );
     }
     assert_eq!(column(&header, &rows, "iteration"), [1.0, 2.0]);
+    // With a mirror loss the run builds the maps from the real server's spec and logs the
+    // figure after the KL (decision record 0033).
+    let mirrored_dir = fresh_dir("loopback_mirror");
+    let mirrored = Overrides {
+        sets: vec!["ppo.mirror_loss_coef=0.2".into()],
+        ..overrides(1)
+    };
+    runtime
+        .block_on(run_recipe(
+            recipe(),
+            &mirrored,
+            &mirrored_dir,
+            &server.address,
+        ))
+        .unwrap();
+    let (m_header, m_rows) = csv(&mirrored_dir.join("01_quad").join("progress.csv"));
+    let m_at = |name: &str| m_header.iter().position(|c| c == name).expect(name);
+    assert!(m_at("kl") < m_at("mirror_loss") && m_at("mirror_loss") < m_at("learning_rate"));
+    let figure = column(&m_header, &m_rows, "mirror_loss");
+    assert!(figure.len() == 1 && figure[0] > 0.0, "{figure:?}");
+    assert!(!header.iter().any(|c| c == "mirror_loss"));
     // --tensorboard: the same names and values, step = iteration, in one event file.
     let files: Vec<PathBuf> = std::fs::read_dir(&stage)
         .unwrap()

@@ -9,6 +9,7 @@ import torch
 from torch import nn
 
 from unigait.algorithms.optim import adam
+from unigait.algorithms.symmetry import ActorMirror, mirror_loss
 from unigait.modules.actor_critic import ActorCritic
 from unigait.storage.rollout_storage import RolloutStorage
 
@@ -39,6 +40,9 @@ class PPOConfig:
             the batch (rl_games' bounds loss). A Gaussian's mean is otherwise unbounded: on
             stairs the terrain run's means reached 100-155 (targets 25-39 rad from default) and
             its updates went non-finite (docs/src/decisions/0031-action-mean-bound.md).
+        mirror_loss_coef: Weight of the mirror loss, mean (mu(M x) - M mu(x))^2 with M the
+            robot's left-right mirror (0: none). It needs the mirror maps, which the runner
+            builds from the session spec (docs/src/decisions/0033-mirror-loss.md).
     """
 
     num_learning_epochs: int = 5
@@ -57,6 +61,7 @@ class PPOConfig:
     min_action_std: float = 0.0
     action_mean_bound: float = 0.0
     bound_loss_coef: float = 0.0
+    mirror_loss_coef: float = 0.0
 
 
 def gaussian_kl(
@@ -122,11 +127,21 @@ class PPO:
     Args:
         actor_critic: The networks (one Adam optimiser over actor, critic and std).
         cfg: Hyper-parameters.
+        mirror: The left-right mirror of the actor's input and actions; needed when
+            ``cfg.mirror_loss_coef`` > 0.
+
+    Raises:
+        ValueError: A mirror loss weight without the mirror maps.
     """
 
-    def __init__(self, actor_critic: ActorCritic, cfg: PPOConfig) -> None:
+    def __init__(
+        self, actor_critic: ActorCritic, cfg: PPOConfig, mirror: ActorMirror | None = None
+    ) -> None:
+        if cfg.mirror_loss_coef > 0.0 and mirror is None:
+            raise ValueError("ppo.mirror_loss_coef > 0 needs the mirror maps (ActorMirror)")
         self.actor_critic = actor_critic
         self.cfg = cfg
+        self.mirror = mirror if cfg.mirror_loss_coef > 0.0 else None
         self.learning_rate = cfg.learning_rate
         self.optimizer = adam(actor_critic.parameters(), cfg.learning_rate)
 
@@ -145,6 +160,7 @@ class PPO:
             "entropy": 0.0,
             "kl": 0.0,
             "bound_loss": 0.0,
+            "mirror_loss": 0.0,
         }
         bounded = cfg.action_mean_bound > 0.0 and cfg.bound_loss_coef > 0.0
         count = 0
@@ -185,6 +201,11 @@ class PPO:
                 b_loss = bound_loss(dist.mean, cfg.action_mean_bound)
                 loss = loss + cfg.bound_loss_coef * b_loss
                 sums["bound_loss"] += b_loss.item()
+            if self.mirror is not None:
+                mirrored = ac.act_inference(self.mirror.actor_obs(mb.actor_obs))
+                m_loss = mirror_loss(dist.mean, mirrored, self.mirror)
+                loss = loss + cfg.mirror_loss_coef * m_loss
+                sums["mirror_loss"] += m_loss.item()
             self.optimizer.zero_grad()
             loss.backward()
             nn.utils.clip_grad_norm_(ac.parameters(), cfg.max_grad_norm)
@@ -201,6 +222,8 @@ class PPO:
         stats = {k: v / max(count, 1) for k, v in sums.items()}
         if not bounded:
             del stats["bound_loss"]
+        if self.mirror is None:
+            del stats["mirror_loss"]
         stats["learning_rate"] = self.learning_rate
         stats["action_std"] = ac.std.mean().item()
         return stats

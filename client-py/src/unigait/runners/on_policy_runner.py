@@ -17,6 +17,7 @@ from typing import Any, Protocol
 import torch
 
 from unigait.algorithms import PPO, EstimatorLearning
+from unigait.algorithms.symmetry import ActorMirror
 from unigait.config import TrainConfig, apply, checkpoint_engine, same_task
 from unigait.env import BipedPoseStats, EpisodeStats, ObservationHistory, TorchStep, TorchVecEnv
 from unigait.env.biped_pose import BIPED_MODE
@@ -128,7 +129,10 @@ class OnPolicyRunner:
         )
         self.actor_critic.to(self.device)
         self.estimator.to(self.device)
-        self.ppo = PPO(self.actor_critic, cfg.ppo)
+        mirror = None
+        if cfg.ppo.mirror_loss_coef > 0.0:
+            mirror = ActorMirror.from_spec(spec, cfg.policy.history_length).to(self.device)
+        self.ppo = PPO(self.actor_critic, cfg.ppo, mirror)
         self.estimator_learning = EstimatorLearning(self.estimator, cfg.estimator)
         history_dim = cfg.policy.history_length * spec.obs_dim
         self.storage = RolloutStorage(
