@@ -69,9 +69,17 @@ def rollout(
     envs: int,
     steps: int,
     seed: int,
+    sampled: bool = False,
 ) -> tuple[Rollout, tuple[str, ...]]:
-    """Run ``steps`` policy steps (no env survives past its first episode in the counts)."""
+    """Run ``steps`` policy steps (no env survives past its first episode in the counts).
+
+    ``sampled`` draws each action from the policy's Gaussian, as the training rollouts (and
+    so the curriculum's promotions) do, instead of taking its mean.
+    """
     policy, dims, engine = load_policy(checkpoint)
+    std = torch.load(checkpoint, map_location="cpu", weights_only=False)["actor_critic"]["log_std"]
+    std = std.exp() if sampled else torch.zeros_like(std)
+    generator = torch.Generator().manual_seed(seed)
     config = SessionConfig(
         num_envs=envs,
         seed=seed,
@@ -94,6 +102,7 @@ def rollout(
     for _ in range(steps):
         with torch.no_grad():
             actions = policy(history.flat.view(envs, 3, -1))
+            actions = actions + std * torch.randn(actions.shape, generator=generator)
         out = env.step(actions)
         history.push(out.obs, out.dones)
         frame = heading_frame(out.obs, at)
@@ -126,12 +135,13 @@ def main() -> None:
     p.add_argument("--steps", type=int, default=600, help="policy steps (50 per second)")
     p.add_argument("--seed", type=int, default=5)
     p.add_argument("--terms", type=int, default=6, help="reward terms listed per level")
+    p.add_argument("--sampled", action="store_true", help="actions drawn with the policy's std")
     a = p.parse_args()
     commanded = abs(a.vx) * a.steps * DT
     promote_m = max(PROMOTE * commanded, MIN_PROMOTE_M)
     with LocalServer() as server:
         flat, names = rollout(
-            server, a.checkpoint, "flat", 0, a.mode, a.vx, a.envs, a.steps, a.seed
+            server, a.checkpoint, "flat", 0, a.mode, a.vx, a.envs, a.steps, a.seed, a.sampled
         )
         print(
             f"flat: walked {flat.distance.mean():+.2f} m of {commanded:.1f} commanded "
@@ -151,6 +161,7 @@ def main() -> None:
                 a.envs,
                 a.steps,
                 a.seed,
+                a.sampled,
             )
             walked = r.distance * (1.0 if a.vx >= 0 else -1.0)
             delta = r.terms - flat.terms
