@@ -102,7 +102,9 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     (terrain, explore, stairs, clearance, articulated, per_mode, pace, quad_pace, anticipate) = (
         load_recipe("unified_terrain").stages[:9]
     )
-    bounded, higher_swing, heading, kernel, mirror = load_recipe("unified_terrain").stages[9:]
+    bounded, higher_swing, heading, kernel, mirror, quad_heading = load_recipe(
+        "unified_terrain"
+    ).stages[9:]
     assert terrain.config.policy == settle.config.policy
     assert (
         terrain.config.env.task["rewards"]["weights"]
@@ -171,6 +173,11 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     assert mirror.config.env == kernel.config.env and mirror.carry == "all"
     assert mirror.config.ppo == dataclasses.replace(kernel.config.ppo, mirror_loss_coef=0.2)
     assert kernel.config.ppo.mirror_loss_coef == 0.0
+    # The fifteenth weighs the quad's yaw rate twice and keeps the rest, the mirror loss too.
+    turned_quad = quad_heading.config.env.task["rewards"]
+    assert turned_quad["weights"] == {**steep["weights"], "quad_tracking_ang_vel": 2.0}
+    assert {**turned_quad, "weights": steep["weights"]} == steep
+    assert quad_heading.config.ppo == mirror.config.ppo and quad_heading.carry == "all"
     # --set applies on top of every stage.
     small = load_recipe("unified_flat", ["env.num_envs=8"])
     assert [s.config.env.num_envs for s in small.stages] == [8, 8, 8]
