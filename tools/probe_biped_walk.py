@@ -109,6 +109,22 @@ class Sway:
             self.peak_hz = np.fft.rfftfreq(x.shape[0], dt)[1:][power[1:].argmax(0)]
 
 
+class ActionNoise:
+    """The policy's own Gaussian noise on its mean actions when ``sampled`` (as the training
+    rollouts act), none otherwise; seeded, so a probe repeats.
+    """
+
+    def __init__(self, checkpoint: str, sampled: bool, seed: int) -> None:
+        state = torch.load(checkpoint, map_location="cpu", weights_only=False)
+        log_std = state["actor_critic"]["log_std"]
+        self.std = log_std.exp() if sampled else torch.zeros_like(log_std)
+        self.generator = torch.Generator().manual_seed(seed)
+
+    def __call__(self, mean: torch.Tensor) -> torch.Tensor:
+        """Actions around ``mean``."""
+        return mean + self.std * torch.randn(mean.shape, generator=self.generator)
+
+
 def yaw_kernel(error: torch.Tensor) -> float:
     """Mean of the yaw-rate tracking reward's kernel, exp(-4 e^2), over the measured steps.
 
@@ -164,9 +180,7 @@ def probe(
     """
     vx, vy, wz = command
     policy, dims, engine = load_policy(checkpoint)
-    std = torch.load(checkpoint, map_location="cpu", weights_only=False)["actor_critic"]["log_std"]
-    std = std.exp() if sampled else torch.zeros_like(std)
-    generator = torch.Generator().manual_seed(seed)
+    noise = ActionNoise(checkpoint, sampled, seed)
     on_engine = f'[physics]\nengine = "{engine}"\n'  # the one it trained on (decision 0026)
     with LocalServer() as server:
         task = overrides(vx, vy, wz) + on_engine
@@ -185,7 +199,7 @@ def probe(
         for t in range(steps):
             with torch.no_grad():
                 actions = policy(history.flat.view(envs, 3, -1))
-                actions = actions + std * torch.randn(actions.shape, generator=generator)
+                actions = noise(actions)
             out = env.step(actions)
             history.push(out.obs, out.dones)
             alive &= ~out.terminated

@@ -18,7 +18,7 @@ from __future__ import annotations
 import argparse
 
 import torch
-from probe_biped_walk import ObsFields, heading_frame, in_heading_frame
+from probe_biped_walk import ActionNoise, ObsFields, heading_frame, in_heading_frame
 from unigait.client import SessionConfig, open_session
 from unigait.env import ObservationHistory, TorchVecEnv
 from unigait.export import load_policy
@@ -77,9 +77,7 @@ def rollout(
     so the curriculum's promotions) do, instead of taking its mean.
     """
     policy, dims, engine = load_policy(checkpoint)
-    std = torch.load(checkpoint, map_location="cpu", weights_only=False)["actor_critic"]["log_std"]
-    std = std.exp() if sampled else torch.zeros_like(std)
-    generator = torch.Generator().manual_seed(seed)
+    noise = ActionNoise(checkpoint, sampled, seed)
     config = SessionConfig(
         num_envs=envs,
         seed=seed,
@@ -102,7 +100,7 @@ def rollout(
     for _ in range(steps):
         with torch.no_grad():
             actions = policy(history.flat.view(envs, 3, -1))
-            actions = actions + std * torch.randn(actions.shape, generator=generator)
+            actions = noise(actions)
         out = env.step(actions)
         history.push(out.obs, out.dones)
         frame = heading_frame(out.obs, at)
