@@ -110,8 +110,9 @@ class Sway:
 
 
 class ActionNoise:
-    """The policy's own Gaussian noise on its mean actions when ``sampled`` (as the training
-    rollouts act), none otherwise; seeded, so a probe repeats.
+    """The policy's own Gaussian noise on its mean actions when ``sampled``, none otherwise.
+
+    Sampled actions are how the training rollouts act; the generator is seeded, so a probe repeats.
     """
 
     def __init__(self, checkpoint: str, sampled: bool, seed: int) -> None:
