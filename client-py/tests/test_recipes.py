@@ -102,7 +102,7 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     (terrain, explore, stairs, clearance, articulated, per_mode, pace, quad_pace, anticipate) = (
         load_recipe("unified_terrain").stages[:9]
     )
-    bounded, higher_swing, heading, kernel, mirror, quad_heading = load_recipe(
+    bounded, higher_swing, heading, kernel, mirror, quad_heading, friction = load_recipe(
         "unified_terrain"
     ).stages[9:]
     assert terrain.config.policy == settle.config.policy
@@ -178,6 +178,17 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     assert turned_quad["weights"] == {**steep["weights"], "quad_tracking_ang_vel": 2.0}
     assert {**turned_quad, "weights": steep["weights"]} == steep
     assert quad_heading.config.ppo == mirror.config.ppo and quad_heading.carry == "all"
+    # Every stage so far kept the friction rule it inherited from the flat recipe; the sixteenth
+    # averages the robot's coefficient with the ground's, as the paper's simulator (decision 0034).
+    assert quad_heading.config.env.task["randomization"] == {"friction_combine": "multiply"}
+    assert terrain.config.env.task["randomization"] == {"friction_combine": "multiply"}
+    averaged = friction.config.env.task
+    assert averaged["randomization"] == {"friction_combine": "average"}
+    assert {
+        **averaged,
+        "randomization": {"friction_combine": "multiply"},
+    } == quad_heading.config.env.task
+    assert friction.config.ppo == quad_heading.config.ppo and friction.carry == "all"
     # --set applies on top of every stage.
     small = load_recipe("unified_flat", ["env.num_envs=8"])
     assert [s.config.env.num_envs for s in small.stages] == [8, 8, 8]

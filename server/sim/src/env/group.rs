@@ -95,7 +95,9 @@ impl EnvGroup {
                 }
             })
             .collect();
-        let actuator = nominal.physical_params(&sh.model.config).actuator;
+        let actuator = nominal
+            .physical_params(&sh.model.config, &sh.ctx.config.randomization)
+            .actuator;
         Self {
             world,
             envs,
@@ -147,7 +149,9 @@ impl EnvGroup {
         let previous = self.states[slot];
         let env = &mut self.envs[slot];
         env.randomization = Randomization::sample(&cfg.randomization, &model.config, &mut env.rng);
-        let params = env.randomization.physical_params(&model.config);
+        let params = env
+            .randomization
+            .physical_params(&model.config, &cfg.randomization);
         self.world.set_physical_params(model, slot, &params);
         self.actuators[slot] = params.actuator;
 

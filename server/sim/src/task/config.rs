@@ -216,8 +216,14 @@ impl Default for InitParams {
 pub struct RandomizationParams {
     /// Draw the values below (else the robot's nominal values). Default true.
     pub enabled: bool,
-    /// Robot-terrain friction coefficient. Default [0.2, 1.6].
+    /// The robot's friction coefficient (Table V). Default [0.2, 1.6]. The contact's
+    /// coefficient combines it with `ground_friction` by `friction_combine`.
     pub friction: Range,
+    /// The terrain's friction coefficient. Default 1, legged_gym's terrain.
+    pub ground_friction: f32,
+    /// How a contact's friction comes from the robot's and the ground's. Default `"average"`,
+    /// PhysX's rule in the paper's simulator (decision record 0034).
+    pub friction_combine: FrictionCombine,
     /// Payload on the trunk (kg). Default [-1, 1].
     pub payload: Range,
     /// Trunk centre-of-mass shift per axis (m). Default [-0.01, 0.01].
@@ -243,6 +249,8 @@ impl Default for RandomizationParams {
         Self {
             enabled: true,
             friction: [0.2, 1.6],
+            ground_friction: 1.0,
+            friction_combine: FrictionCombine::Average,
             payload: [-1.0, 1.0],
             com_offset: [-0.01, 0.01],
             joint_damping: [0.25, 0.35],
@@ -252,6 +260,29 @@ impl Default for RandomizationParams {
             kd_factor: [0.8, 1.2],
             push_interval_s: 10.0,
             push_velocity: 1.0,
+        }
+    }
+}
+
+/// How a contact's friction coefficient comes from the robot's and the ground's.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FrictionCombine {
+    /// Their mean, PhysX's default: Isaac Gym's robots drawn from [0.2, 1.6] on its terrain's
+    /// 1.0 touch it at [0.6, 1.3].
+    #[default]
+    Average,
+    /// Their product: with the ground's 1.0 the robot's coefficient is the contact's (the rule
+    /// before decision record 0034).
+    Multiply,
+}
+
+impl FrictionCombine {
+    /// The contact's coefficient for a robot's `robot` and the ground's `ground`.
+    pub fn apply(self, robot: f32, ground: f32) -> f32 {
+        match self {
+            FrictionCombine::Average => 0.5 * (robot + ground),
+            FrictionCombine::Multiply => robot * ground,
         }
     }
 }

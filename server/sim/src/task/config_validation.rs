@@ -125,6 +125,12 @@ impl TaskConfig {
         check("init.spawn_clearance", i.spawn_clearance, 0.0, 2.0)?;
         let r = &self.randomization;
         check_range("randomization.friction", r.friction, 0.0, 10.0)?;
+        check(
+            "randomization.ground_friction",
+            r.ground_friction,
+            0.0,
+            10.0,
+        )?;
         check_range("randomization.payload", r.payload, -5.0, 20.0)?;
         check_range("randomization.com_offset", r.com_offset, -0.1, 0.1)?;
         check_range("randomization.joint_damping", r.joint_damping, 0.0, 10.0)?;

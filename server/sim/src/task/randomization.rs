@@ -83,8 +83,13 @@ impl Randomization {
         }
     }
 
-    /// The physical parameters these values give the robot.
-    pub fn physical_params(&self, robot: &RobotConfig) -> RobotPhysicalParams {
+    /// The physical parameters these values give the robot; its contacts' friction combines
+    /// the drawn coefficient with the ground's as `ranges` says.
+    pub fn physical_params(
+        &self,
+        robot: &RobotConfig,
+        ranges: &RandomizationParams,
+    ) -> RobotPhysicalParams {
         RobotPhysicalParams {
             actuator: ActuatorParams {
                 kp: robot.kp * self.kp_factor,
@@ -95,7 +100,9 @@ impl Randomization {
             armature: self.armature,
             payload: self.payload,
             com_offset: self.com_offset,
-            friction: self.friction,
+            friction: ranges
+                .friction_combine
+                .apply(self.friction, ranges.ground_friction),
         }
     }
 
@@ -119,5 +126,42 @@ impl Randomization {
             unit_scale(self.kp_factor, r.kp_factor),
             unit_scale(self.kd_factor, r.kd_factor),
         ]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::task::FrictionCombine;
+
+    fn drawn(friction: f32) -> Randomization {
+        Randomization {
+            friction,
+            ..Randomization::nominal(&RobotConfig::default())
+        }
+    }
+
+    #[test]
+    fn the_contact_friction_combines_the_robots_with_the_grounds() {
+        let robot = RobotConfig::default();
+        let mut ranges = RandomizationParams::default();
+        // Isaac Gym's rule on its terrain's 1.0: Table V's ends 0.2 and 1.6 touch at 0.6, 1.3.
+        assert_eq!(ranges.friction_combine, FrictionCombine::Average);
+        let contact = |r: &RandomizationParams, mu| drawn(mu).physical_params(&robot, r).friction;
+        assert!((contact(&ranges, 0.2) - 0.6).abs() < 1e-6);
+        assert!((contact(&ranges, 1.6) - 1.3).abs() < 1e-6);
+        ranges.ground_friction = 0.4;
+        assert!((contact(&ranges, 0.2) - 0.3).abs() < 1e-6);
+        ranges.friction_combine = FrictionCombine::Multiply;
+        assert!((contact(&ranges, 0.2) - 0.08).abs() < 1e-6);
+        ranges.ground_friction = 1.0;
+        assert!((contact(&ranges, 0.2) - 0.2).abs() < 1e-6);
+        // The nominal robot touches at 1 either way; s_t keeps the robot's own coefficient.
+        let nominal = Randomization::nominal(&robot);
+        for rule in [FrictionCombine::Average, FrictionCombine::Multiply] {
+            ranges.friction_combine = rule;
+            assert_eq!(nominal.physical_params(&robot, &ranges).friction, 1.0);
+        }
+        assert_eq!(drawn(0.2).privileged(&ranges)[0], -1.0);
     }
 }
