@@ -52,8 +52,18 @@ def test_a_group_passes_with_enough_of_its_checks():
     three = {**columns, "stairs_up_quad/success_rate": 0.9, "slope_quad/success_rate": 0.5}
     three["stairs_up_biped/success_rate"] = 0.55
     assert m3.score({**flat, "table_vi": three})[0] == 7 and not m3.met({**flat, "table_vi": three})
+    # What falls short is said with its figures.
+    assert m3.unmet({**flat, "table_vi": three}) == [
+        "table_vi: 3 of 6, needs 4: 15 cm stairs up (q) 0.9 (needs >= 1); "
+        "30 deg slope (q) 0.5 (needs >= 1); 12 cm stairs up (b) 0.55 (needs >= 0.6)"
+    ]
+    slow = {**flat["tracking_quad"], "tracking/quad/ang_vel_error_radps": 0.226}
+    assert m3.unmet({**flat, "tracking_quad": slow, "table_vi": three})[0] == (
+        "quad yaw-rate error 0.226 (needs <= 0.2)"
+    )
+    assert m3.unmet({"table_vi": columns})[0] == "quad lin. vel. error missing (needs <= 0.15)"
     four = {**three, "stairs_up_biped/success_rate": 0.6}
-    assert m3.met({**flat, "table_vi": four})
+    assert m3.met({**flat, "table_vi": four}) and m3.unmet({**flat, "table_vi": four}) == []
 
 
 @pytest.mark.parametrize(

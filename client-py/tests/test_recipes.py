@@ -326,7 +326,7 @@ bound = 5
     (record,) = [
         json.loads(x) for x in (run / "02_second" / "validation.jsonl").read_text().split("\n") if x
     ]
-    assert record["criteria_met"] == 1 and record["iteration"] == 4
+    assert record["criteria_met"] == 1 and record["iteration"] == 4 and record["unmet"] == []
 
 
 def test_log_directories_are_not_mixed(fake_server, tmp_path, capsys):

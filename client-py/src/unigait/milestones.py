@@ -99,6 +99,31 @@ class Milestone:
         """Whether every criterion is met."""
         return self.score(evals)[0] == self.criteria()
 
+    def unmet(self, evals: Evals) -> list[str]:
+        """The criteria not met, each with its figures (``quad yaw-rate error 0.226 > 0.2``).
+
+        A group that falls short is one entry: how many of its checks pass, how many it needs,
+        and each failing check's figure.
+        """
+        out: list[str] = []
+        short: dict[str, list[str]] = {g: [] for g in self.groups}
+        for check in self.checks:
+            value = check.value(evals)
+            if check.passes(value):
+                continue
+            shown = "missing" if value is None else f"{value:.3g}"
+            failing = f"{check.label} {shown} (needs {check.op} {check.bound:g})"
+            if check.group is None:
+                out.append(failing)
+            else:
+                short[check.group].append(failing)
+        for group, need in self.groups.items():
+            size = sum(c.group == group for c in self.checks)
+            passed = size - len(short[group])
+            if passed < need:
+                out.append(f"{group}: {passed} of {size}, needs {need}: " + "; ".join(short[group]))
+        return out
+
 
 def _check(raw: Any, where: str, groups: Mapping[str, int]) -> Check:
     if not isinstance(raw, dict):

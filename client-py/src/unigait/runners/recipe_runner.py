@@ -144,6 +144,7 @@ def evaluate_milestone(
         "criteria_met": met,
         "criteria": target.criteria(),
         "margin": margin,
+        "unmet": target.unmet(evals),
         "seed": seed,
         "evals": evals,
     }
@@ -289,6 +290,7 @@ def run_stage(
                 log(
                     f"stage {stage.dir_name}: iteration {runner.iteration}: {record['milestone']} "
                     f"{record['criteria_met']}/{record['criteria']} on seed {record['seed']}"
+                    + "".join(f"\n  unmet: {u}" for u in record["unmet"])
                 )
             own = view is not None and view_every and runner.iteration % view_every == 0
             if view is not None and own and record is None:  # the view's own evaluation
