@@ -399,6 +399,14 @@ fn run_traversal(
         let terrain = obstacle_terrain(&case.obstacle, seed)?;
         let mut rollout = Rollout::new(options.make_env(config, terrain, envs, seed)?);
         observer.begin_case(k, case.name, rollout.env());
+        // Drawn at the trial's reset: a terminated env redraws, so read them now.
+        let contact_friction: Vec<f32> = (0..envs)
+            .map(|i| {
+                let drawn = rollout.env().env_state(i).randomization.friction;
+                let r = &rollout.env().context().config.randomization;
+                r.friction_combine.apply(drawn, r.ground_friction)
+            })
+            .collect();
         let mut ended: Vec<Option<(TraversalEnd, u32)>> = vec![None; envs];
         let mut best = vec![0.0f32; envs];
         let direction = case.direction.signum();
@@ -468,6 +476,7 @@ fn run_traversal(
                 end,
                 progress_m: best[i],
                 time_s: step as f32 * dt,
+                contact_friction: contact_friction[i],
             });
         }
         c.success_rate = rate(c.successes, c.trials);

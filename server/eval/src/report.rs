@@ -22,6 +22,9 @@ pub struct TraversalTrial {
     pub progress_m: f32,
     /// When it ended (s).
     pub time_s: f32,
+    /// The friction coefficient of the trial's contacts with the ground (the robot's drawn one
+    /// combined with the ground's, decision record 0034).
+    pub contact_friction: f32,
 }
 
 /// Results of one traversal case (one terrain and direction).

@@ -62,7 +62,14 @@ fn standing_still_never_crosses() {
         for o in &t.outcomes {
             assert!(o.progress_m < 1.0, "{name}: {o:?}");
             assert_ne!(o.end, TraversalEnd::Crossed);
+            // Table V's [0.2, 1.6] on the robot, averaged with the ground's 1.0.
+            assert!((0.6..=1.3).contains(&o.contact_friction), "{name}: {o:?}");
         }
+        let first = t.outcomes[0].contact_friction;
+        assert!(
+            t.outcomes.iter().any(|o| o.contact_friction != first),
+            "{name}: one draw"
+        );
         last = Some(report);
     }
     // The slope's 4 trials: one each way up and down, counted by direction and by slope part.
