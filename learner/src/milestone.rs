@@ -131,6 +131,51 @@ impl Milestone {
     pub fn met(&self, evals: &Evals) -> bool {
         self.score(evals) == self.criteria()
     }
+
+    /// The criteria not met, each with its figures (`quad yaw-rate error 0.226 (needs <= 0.2)`);
+    /// a group that falls short is one entry. The Python learner's rows say the same.
+    pub fn unmet(&self, evals: &Evals) -> Vec<String> {
+        let mut out = Vec::new();
+        let mut short: BTreeMap<&str, Vec<String>> = self
+            .groups
+            .keys()
+            .map(|g| (g.as_str(), Vec::new()))
+            .collect();
+        for c in &self.checks {
+            let value = c.value(evals);
+            if c.passes(value) {
+                continue;
+            }
+            let shown = value.map_or_else(|| "missing".to_string(), figure);
+            let failing = format!("{} {shown} (needs {} {})", c.label, c.op, figure(c.bound));
+            match &c.group {
+                None => out.push(failing),
+                Some(g) => short.entry(g.as_str()).or_default().push(failing),
+            }
+        }
+        for (group, need) in &self.groups {
+            let size = self
+                .checks
+                .iter()
+                .filter(|c| c.group.as_deref() == Some(group.as_str()))
+                .count();
+            let failing = short.remove(group.as_str()).unwrap_or_default();
+            let passed = size - failing.len();
+            if passed < *need {
+                out.push(format!(
+                    "{group}: {passed} of {size}, needs {need}: {}",
+                    failing.join("; ")
+                ));
+            }
+        }
+        out
+    }
+}
+
+/// `value` to 3 decimals without trailing zeros (`0.226`, `1`).
+fn figure(value: f64) -> String {
+    let text = format!("{value:.3}");
+    text.trim_end_matches('0').trim_end_matches('.').to_string()
 }
 
 /// The milestones file: `$UNIGAIT_MILESTONES`, else the repository's `assets/milestones.toml`.
@@ -274,7 +319,7 @@ mod tests {
             ("tracking_quad", "tracking/quad/ang_vel_error_radps", 0.1),
             ("tracking_quad", "tracking/quad/termination_rate", 0.0),
         ]);
-        assert!(m1.met(&good));
+        assert!(m1.met(&good) && m1.unmet(&good).is_empty());
         let slow = evals(&[
             ("tracking_quad", "tracking/quad/lin_vel_error_mps", 0.151),
             ("tracking_quad", "tracking/quad/ang_vel_error_radps", 0.1),
@@ -282,6 +327,10 @@ mod tests {
         ]);
         assert_eq!(m1.score(&slow), 2);
         assert!(!m1.met(&slow));
+        assert_eq!(
+            m1.unmet(&slow),
+            ["quad lin. vel. error 0.151 (needs <= 0.15)"]
+        );
         // A missing metric does not pass.
         assert_eq!(m1.score(&evals(&[])), 0);
     }
@@ -296,5 +345,23 @@ mod tests {
         assert_eq!(m3.envs_for("table_vi", 64), 20);
         let m2 = load_milestone("M2", &milestones_file()).unwrap();
         assert_eq!(m3.criteria(), m2.criteria() + 1);
+        // Table VI short of its group, in the Python learner's words.
+        let columns = evals(&[
+            ("table_vi", "stairs_up_quad/success_rate", 0.0),
+            ("table_vi", "stairs_down_quad/success_rate", 1.0),
+            ("table_vi", "slope_quad/success_rate", 0.9),
+            ("table_vi", "slope_biped/success_rate", 0.7),
+            ("table_vi", "stairs_up_biped/success_rate", 0.55),
+            ("table_vi", "stairs_down_biped/success_rate", 1.0),
+        ]);
+        let unmet = m3.unmet(&columns);
+        assert_eq!(unmet.len(), m2.criteria() + 1, "{unmet:?}");
+        assert_eq!(
+            unmet[unmet.len() - 1],
+            "table_vi: 2 of 6, needs 4: 15 cm stairs up (q) 0 (needs >= 1); 30 deg slope (q) \
+             0.9 (needs >= 1); 30 deg slope (b) 0.7 (needs >= 1); 12 cm stairs up (b) 0.55 \
+             (needs >= 0.6)"
+        );
+        assert_eq!(unmet[0], "quad lin. vel. error missing (needs <= 0.15)");
     }
 }

@@ -407,6 +407,7 @@ async fn train_stage(
                 "milestone": m.name,
                 "criteria_met": met,
                 "criteria": m.criteria(),
+                "unmet": m.unmet(&evals),
                 "seed": rule.validation_seed,
                 "evals": evals,
             });
@@ -423,6 +424,9 @@ async fn train_stage(
                 m.criteria(),
                 rule.validation_seed
             );
+            for unmet in m.unmet(&evals) {
+                tracing::info!("  unmet: {unmet}");
+            }
             if m.met(&evals) {
                 reason = format!("milestone {} met on seed {}", m.name, rule.validation_seed);
                 break;

@@ -111,8 +111,8 @@ class Milestone:
             value = check.value(evals)
             if check.passes(value):
                 continue
-            shown = "missing" if value is None else f"{value:.3g}"
-            failing = f"{check.label} {shown} (needs {check.op} {check.bound:g})"
+            shown = "missing" if value is None else _figure(value)
+            failing = f"{check.label} {shown} (needs {check.op} {_figure(check.bound)})"
             if check.group is None:
                 out.append(failing)
             else:
@@ -123,6 +123,11 @@ class Milestone:
             if passed < need:
                 out.append(f"{group}: {passed} of {size}, needs {need}: " + "; ".join(short[group]))
         return out
+
+
+def _figure(value: float) -> str:
+    """``value`` to 3 decimals without trailing zeros (``0.226``, ``1``), as the Rust learner."""
+    return f"{value:.3f}".rstrip("0").rstrip(".")
 
 
 def _check(raw: Any, where: str, groups: Mapping[str, int]) -> Check:
