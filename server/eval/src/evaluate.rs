@@ -400,11 +400,11 @@ fn run_traversal(
         let mut rollout = Rollout::new(options.make_env(config, terrain, envs, seed)?);
         observer.begin_case(k, case.name, rollout.env());
         // Drawn at the trial's reset: a terminated env redraws, so read them now.
+        let ranges = &rollout.env().context().config.randomization;
         let contact_friction: Vec<f32> = (0..envs)
             .map(|i| {
                 let drawn = rollout.env().env_state(i).randomization.friction;
-                let r = &rollout.env().context().config.randomization;
-                r.friction_combine.apply(drawn, r.ground_friction)
+                ranges.friction_combine.apply(drawn, ranges.ground_friction)
             })
             .collect();
         let mut ended: Vec<Option<(TraversalEnd, u32)>> = vec![None; envs];
