@@ -102,7 +102,7 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     (terrain, explore, stairs, clearance, articulated, per_mode, pace, quad_pace, anticipate) = (
         load_recipe("unified_terrain").stages[:9]
     )
-    bounded, higher_swing, heading, kernel, mirror, quad_heading, friction = load_recipe(
+    bounded, higher_swing, heading, kernel, mirror, quad_heading, friction, run_on = load_recipe(
         "unified_terrain"
     ).stages[9:]
     assert terrain.config.policy == settle.config.policy
@@ -189,6 +189,9 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
         "randomization": {"friction_combine": "multiply"},
     } == quad_heading.config.env.task
     assert friction.config.ppo == quad_heading.config.ppo and friction.carry == "all"
+    # The seventeenth runs the sixteenth's settings on, checking M3 as before.
+    assert run_on.config == friction.config and run_on.carry == "all"
+    assert run_on.stop.milestone == "M3" and run_on.stop.check_every == 500
     # --set applies on top of every stage.
     small = load_recipe("unified_flat", ["env.num_envs=8"])
     assert [s.config.env.num_envs for s in small.stages] == [8, 8, 8]

@@ -312,3 +312,23 @@ def test_a_non_finite_rollout_stops_the_run_before_the_update(tmp_path):
         torch.equal(a, b) for a, b in zip(before, bad.actor_critic.parameters(), strict=True)
     )
     assert not list((tmp_path / "bad").glob("model_*.pt"))
+
+
+class _BlowsUpEveryOtherStep(FakeSession):
+    """The server reports one env reset for a physics blow-up on every second step."""
+
+    def step(self, actions, *, reward_terms=False):
+        result = super().step(actions, reward_terms=reward_terms)
+        return dataclasses.replace(result, nonfinite_resets=self.sim.step_count % 2)
+
+
+def test_the_log_counts_the_servers_blowup_resets(tmp_path):
+    torch.manual_seed(0)
+    cfg = load_config(None, SMALL)
+    clean = OnPolicyRunner(TorchVecEnv(FakeSession(8)), cfg, tmp_path / "clean")
+    assert clean.learn(1)[0]["physics_blowups"] == 0.0
+    runner = OnPolicyRunner(TorchVecEnv(_BlowsUpEveryOtherStep(8)), cfg, tmp_path / "hit")
+    steps = cfg.runner.num_steps_per_env
+    rows = runner.learn(2)
+    # Steps 1..2n of two rollouts: every odd one reports a reset.
+    assert [r["physics_blowups"] for r in rows] == [steps // 2 + steps % 2, steps // 2]

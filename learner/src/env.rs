@@ -94,6 +94,8 @@ pub struct StepData {
     pub upright_pitch: Option<f32>,
     /// [N] the head touched the terrain in this step (None from servers that do not say).
     pub head_contact: Option<Vec<bool>>,
+    /// Envs the server reset after a physics blow-up in this step.
+    pub nonfinite_resets: u32,
 }
 
 fn f32s(t: &Option<v1::Tensor>, name: &str) -> Result<Option<Vec<f32>>> {
@@ -143,6 +145,7 @@ impl StepData {
                 None => vec![0; n],
             },
             upright_pitch: r.upright_pitch,
+            nonfinite_resets: r.nonfinite_resets,
             head_contact: match &r.head_contact {
                 Some(t) => Some(
                     t.u8_values("head_contact")?

@@ -307,7 +307,7 @@ impl Learner {
         let sigma: Vec<f32> = (0..n).flat_map(|_| std.iter().copied()).collect();
         let terms = envs.reward_terms.len();
         let mut term_sum = vec![0.0f64; terms];
-        let (mut reward_sum, mut biped, mut level) = (0.0f64, 0.0f64, 0.0f64);
+        let (mut reward_sum, mut biped, mut level, mut blowups) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
         let mut ended = Ended::default();
         self.storage.clear();
         let steps = self.cfg.runner.num_steps_per_env;
@@ -372,6 +372,7 @@ impl Learner {
                 }
             }
             reward_sum += next.reward.iter().map(|&r| f64::from(r)).sum::<f64>();
+            blowups += f64::from(next.nonfinite_resets);
             biped += next.mode.iter().filter(|&&m| m == 1).count() as f64 / n as f64;
             // The mode each env acted in, and the state the step left it in.
             envs.biped_pose.add(&envs.last.mode, &next, d.obs, d.labels);
@@ -407,6 +408,8 @@ impl Learner {
             ("mean_step_reward".into(), reward_sum / samples),
             ("terrain_level".into(), level / steps as f64),
             ("biped_share".into(), biped / steps as f64),
+            // Envs the server reset for a physics blow-up (decision 0035): should stay 0.
+            ("physics_blowups".into(), blowups),
         ];
         out.extend(envs.biped_pose.summary());
         out.extend(envs.terrain_stats.summary());

@@ -331,6 +331,7 @@ mod tests {
             terrain_level: vec![0; 3],
             upright_pitch: None,
             head_contact: Some(head.to_vec()),
+            nonfinite_resets: 0,
         }
     }
 

@@ -96,7 +96,8 @@ fn trains_resumes_and_exports_against_the_real_server() {
     // The Python learner's columns, in its order: the biped's pose, then the terrain level per
     // terrain type and per mode. Four legs on flat ground: level 0, and no biped env-step.
     let at = |name: &str| header.iter().position(|c| c == name).expect(name);
-    assert!(at("biped_share") < at("biped_pose/pitch"));
+    assert!(at("biped_share") < at("physics_blowups"));
+    assert!(at("physics_blowups") < at("biped_pose/pitch"));
     assert!(at("biped_pose/rear_feet_up_share") < at("terrain_level/flat"));
     assert!(at("terrain_level/flat") < at("terrain_level/quad"));
     assert!(at("terrain_level/biped") < at("episodes"));
@@ -108,6 +109,7 @@ fn trains_resumes_and_exports_against_the_real_server() {
         assert!(v.is_finite() && v > 0.0 && v <= 100.0, "{v}");
     }
     assert_eq!(column(&header, &rows, "terrain_level/flat"), [0.0, 0.0]);
+    assert_eq!(column(&header, &rows, "physics_blowups"), [0.0, 0.0]);
     assert_eq!(column(&header, &rows, "terrain_level/quad"), [0.0, 0.0]);
     for row in &rows {
         assert_eq!(row[at("terrain_level/biped")], "", "NaN: no biped env-step");

@@ -8,7 +8,10 @@ use common::*;
 use rapier3d::math::{Pose, Vec3};
 use rapier3d::prelude::LockedAxes;
 use unigait_sim::physics::articulated::ArticulatedWorld;
-use unigait_sim::physics::{ActuatorParams, EngineKind, PhysicsParams, RobotPhysicalParams};
+use unigait_sim::physics::{
+    ActuatorParams, EngineKind, MAX_SOUND_BASE_SPEED, MAX_SOUND_BASE_SPIN, MAX_SOUND_JOINT_SPEED,
+    PhysicsParams, RobotPhysicalParams,
+};
 use unigait_sim::prelude::*;
 use unigait_sim::task::euler_pitch;
 use unigait_sim::terrain::{TerrainCollider, TerrainKind, TerrainSpec, TerrainType};
@@ -299,10 +302,11 @@ fn bit_identical_across_thread_counts() {
     assert_eq!(one, trace(3));
 }
 
-/// A non-finite robot is frozen, reported, reset and counted; the others are untouched.
+/// A blown-up robot (non-finite, or finite at 500 m/s: decision 0035) is reported, reset and
+/// counted; the others are untouched.
 #[test]
-fn nonfinite_env_is_quarantined_and_reset() {
-    let run = |poison: bool| {
+fn blown_up_env_is_quarantined_and_reset() {
+    let run = |speed: Option<f32>| {
         let cfg = TaskConfig::embedded_default()
             .with_overrides(ENGINE)
             .expect("config");
@@ -311,28 +315,36 @@ fn nonfinite_env_is_quarantined_and_reset() {
         for _ in 0..10 {
             env.step(&random_actions(8, &mut state)).expect("step");
         }
-        if poison {
-            env.poison_env(3);
+        if let Some(speed) = speed {
+            env.poison_env(3, speed);
         }
         let out = env
             .step(&random_actions(8, &mut state))
             .expect("step")
             .clone();
-        let reset_finite = env.robot_state(3).is_finite();
-        (out, env.nonfinite_resets(), reset_finite)
+        let reset = *env.robot_state(3);
+        (out, env.nonfinite_resets(), reset)
     };
-    let (clean, clean_count, _) = run(false);
-    let (hit, hit_count, reset_finite) = run(true);
+    let (clean, clean_count, _) = run(None);
     assert_eq!(clean_count, 0);
-    assert_eq!(hit_count, 1);
-    assert!(reset_finite, "the env was not reset to a finite state");
-    assert_eq!(hit.nonfinite[3], 1);
-    assert_eq!(hit.terminated[3], 1);
-    assert_eq!(hit.reward[3], 0.0);
-    assert!(hit.obs.iter().chain(&hit.final_obs).all(|v| v.is_finite()));
-    for i in (0..8).filter(|&i| i != 3) {
-        let row = |o: &StepOutput| o.obs[i * OBS_DIM..(i + 1) * OBS_DIM].to_vec();
-        assert_eq!(row(&clean), row(&hit), "env {i} was disturbed");
+    for speed in [f32::NAN, 500.0] {
+        let (hit, hit_count, reset) = run(Some(speed));
+        assert_eq!(hit_count, 1, "{speed}");
+        assert!(reset.is_sound(), "{speed}: the env was not reset");
+        // A reset draws the trunk velocity within 0.5 m/s per axis.
+        assert!(
+            reset.base_linvel.length() < 1.0,
+            "{speed}: {:?}",
+            reset.base_linvel
+        );
+        assert_eq!(hit.nonfinite[3], 1);
+        assert_eq!(hit.terminated[3], 1);
+        assert_eq!(hit.reward[3], 0.0);
+        assert!(hit.obs.iter().chain(&hit.final_obs).all(|v| v.is_finite()));
+        for i in (0..8).filter(|&i| i != 3) {
+            let row = |o: &StepOutput| o.obs[i * OBS_DIM..(i + 1) * OBS_DIM].to_vec();
+            assert_eq!(row(&clean), row(&hit), "{speed}: env {i} was disturbed");
+        }
     }
 }
 
@@ -425,8 +437,25 @@ fn random_actions_on_the_curriculum_grid() {
     let mut env =
         VecEnv::new(Arc::new(RobotModel::go2()), cfg, Arc::new(terrain), options).expect("batch");
     let mut state = 3;
+    // The fastest trunk, spin and joint seen: decision 0035's bounds must sit well above them.
+    let mut fastest = [0.0f32; 3];
     for _ in 0..200 {
         env.step(&random_actions(32, &mut state)).expect("step");
+        for i in 0..32 {
+            let s = env.robot_state(i);
+            let joint = s.qd.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+            let seen = [s.base_linvel.length(), s.base_angvel.length(), joint];
+            for (f, v) in fastest.iter_mut().zip(seen) {
+                *f = f.max(v);
+            }
+        }
     }
+    println!(
+        "fastest trunk {:.2} m/s, spin {:.1} rad/s, joint {:.1} rad/s",
+        fastest[0], fastest[1], fastest[2]
+    );
     assert_eq!(env.nonfinite_resets(), 0);
+    assert!(fastest[0] < MAX_SOUND_BASE_SPEED / 2.0, "{fastest:?}");
+    assert!(fastest[1] < MAX_SOUND_BASE_SPIN / 2.0, "{fastest:?}");
+    assert!(fastest[2] < MAX_SOUND_JOINT_SPEED / 2.0, "{fastest:?}");
 }

@@ -3,6 +3,8 @@
 mod common;
 
 use common::*;
+use rapier3d::math::Vec3;
+use unigait_sim::physics::{MAX_SOUND_BASE_SPEED, MAX_SOUND_BASE_SPIN, MAX_SOUND_JOINT_SPEED};
 use unigait_sim::prelude::*;
 use unigait_sim::task::euler_pitch;
 
@@ -153,40 +155,77 @@ fn thread_count_does_not_change_results() {
     assert_eq!(run(1), run(2));
 }
 
-/// A physics blow-up in one env resets that env, is counted, and leaves the others untouched.
+/// A physics blow-up in one env resets that env, is counted, and leaves the others untouched:
+/// a non-finite state, and a finite one no Go2 reaches (500 m/s, decision 0035).
 #[test]
-fn nonfinite_env_is_reset_and_counted() {
-    let run = |poison: bool| {
+fn blown_up_env_is_reset_and_counted() {
+    let run = |speed: Option<f32>| {
         let mut env = batch(TaskConfig::embedded_default(), 8, 2, 1);
         let mut state = 5;
         for _ in 0..10 {
             env.step(&random_actions(8, &mut state)).expect("step");
         }
-        if poison {
-            env.poison_env(3);
+        if let Some(speed) = speed {
+            env.poison_env(3, speed);
         }
         let out = env
             .step(&random_actions(8, &mut state))
             .expect("step")
             .clone();
-        (out, env.nonfinite_resets())
+        let reset = *env.robot_state(3);
+        (out, env.nonfinite_resets(), reset)
     };
-    let (clean, clean_count) = run(false);
-    let (hit, hit_count) = run(true);
+    let (clean, clean_count, _) = run(None);
     assert_eq!(clean_count, 0);
-    assert_eq!(hit_count, 1);
-    assert_eq!(hit.nonfinite[3], 1);
-    assert_eq!(hit.terminated[3], 1);
-    assert_eq!(hit.reward[3], 0.0);
-    assert!(
-        hit.obs
-            .iter()
-            .chain(&hit.labels)
-            .chain(&hit.final_obs)
-            .all(|v| v.is_finite())
-    );
-    for i in (0..8).filter(|&i| i != 3) {
-        let row = |o: &StepOutput| o.obs[i * OBS_DIM..(i + 1) * OBS_DIM].to_vec();
-        assert_eq!(row(&clean), row(&hit), "env {i} was disturbed");
+    for speed in [f32::NAN, 500.0] {
+        let (hit, hit_count, reset) = run(Some(speed));
+        assert_eq!(hit_count, 1, "{speed}");
+        assert!(
+            reset.is_sound(),
+            "{speed}: not reset ({:?})",
+            reset.base_linvel
+        );
+        // A reset draws the trunk velocity within 0.5 m/s per axis.
+        assert!(
+            reset.base_linvel.length() < 1.0,
+            "{speed}: {:?}",
+            reset.base_linvel
+        );
+        assert_eq!(hit.nonfinite[3], 1);
+        assert_eq!(hit.terminated[3], 1);
+        assert_eq!(hit.reward[3], 0.0);
+        assert!(
+            hit.obs
+                .iter()
+                .chain(&hit.labels)
+                .chain(&hit.final_obs)
+                .all(|v| v.is_finite())
+        );
+        for i in (0..8).filter(|&i| i != 3) {
+            let row = |o: &StepOutput| o.obs[i * OBS_DIM..(i + 1) * OBS_DIM].to_vec();
+            assert_eq!(row(&clean), row(&hit), "{speed}: env {i} was disturbed");
+        }
     }
+}
+
+/// A fast but physical state is not a blow-up: a trunk thrown at 10 m/s with a spinning leg
+/// keeps its episode (decision 0035's bounds sit well above what the task reaches).
+#[test]
+fn fast_physical_states_are_sound() {
+    let mut env = batch(TaskConfig::embedded_default(), 2, 2, 1);
+    env.step(&[0.0; 24]).expect("step");
+    let mut s = *env.robot_state(0);
+    assert!(s.is_sound());
+    s.base_linvel = Vec3::new(10.0, -8.0, -5.0);
+    s.base_angvel = Vec3::new(0.0, 30.0, 20.0);
+    s.qd[2] = 200.0;
+    assert!(s.is_sound());
+    s.qd[2] = -MAX_SOUND_JOINT_SPEED * 1.01;
+    assert!(!s.is_sound());
+    s.qd[2] = 0.0;
+    s.base_angvel.x = MAX_SOUND_BASE_SPIN;
+    assert!(!s.is_sound());
+    s.base_angvel.x = 0.0;
+    s.base_linvel.z = -MAX_SOUND_BASE_SPEED;
+    assert!(!s.is_sound());
 }

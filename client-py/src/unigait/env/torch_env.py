@@ -40,6 +40,7 @@ class TorchStep:
             does not report it).
         upright_pitch: the upright indicator's threshold from the next step on (rad; None when
             the server does not report it).
+        nonfinite_resets: envs the server reset after a physics blow-up in this step.
     """
 
     obs: torch.Tensor
@@ -58,6 +59,7 @@ class TorchStep:
     terrain_level: torch.Tensor
     head_contact: torch.Tensor | None = None
     upright_pitch: float | None = None
+    nonfinite_resets: int = 0
     #: f32 [K, B, 7] poses of the envs the step named in ``draw_envs`` (numpy: for drawing).
     body_poses: np.ndarray | None = None
 
@@ -96,6 +98,7 @@ class TorchStep:
             terrain_level=_t(r.terrain_level, device, torch.int64),
             head_contact=None if r.head_contact is None else _t(r.head_contact, device),
             upright_pitch=r.upright_pitch,
+            nonfinite_resets=r.nonfinite_resets,
             body_poses=r.body_poses,
         )
 

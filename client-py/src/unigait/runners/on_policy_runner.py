@@ -212,7 +212,7 @@ class OnPolicyRunner:
         self.storage.clear()
         step = env.last
         term_sum = torch.zeros(len(spec.reward_terms), device=self.device)
-        reward_sum, biped, level = 0.0, 0.0, 0.0
+        reward_sum, biped, level, blowups = 0.0, 0.0, 0.0, 0
         terrain = TerrainLevelStats.for_env(env)  # level per terrain type and per mode
         ended: dict[str, list[torch.Tensor]] = {
             "reward": [],
@@ -254,6 +254,7 @@ class OnPolicyRunner:
                 if nxt.reward_terms is not None:
                     term_sum += nxt.reward_terms.sum(0)
                 reward_sum += float(nxt.reward.sum())
+                blowups += nxt.nonfinite_resets
                 biped += float((nxt.mode == BIPED_MODE).float().mean())
                 self.biped_pose.add(step.mode, nxt)
                 level += float(nxt.terrain_level.float().mean())
@@ -274,6 +275,8 @@ class OnPolicyRunner:
             "mean_step_reward": reward_sum / samples,
             "terrain_level": level / steps,
             "biped_share": biped / steps,
+            # Envs the server reset for a physics blow-up (decision 0035): should stay 0.
+            "physics_blowups": float(blowups),
             **self.biped_pose.summary(),
             **terrain.summary(),
         }

@@ -42,7 +42,8 @@ pub struct EnvGroup {
     torques: Vec<f32>,
     /// Stage timers of this group.
     pub times: StageTimes,
-    /// Envs reset because their physics went non-finite, since creation.
+    /// Envs reset because their physics blew up (non-finite or beyond any Go2's speeds), since
+    /// creation.
     pub nonfinite_resets: u64,
     /// Biped-mode env-steps since the batch last took them (for the upright curriculum).
     pub upright_counts: UprightCounts,
@@ -197,7 +198,7 @@ impl EnvGroup {
                             .initial_tile(env.id.index(), sh.num_envs, &mut env.rng);
                     env.terrain_level = level;
                     env.terrain_type = column;
-                } else if previous.is_finite() {
+                } else if previous.is_sound() {
                     // The curriculum judges the episode that just ended by what the robot
                     // walked along its commands against what they asked for (both integrated
                     // per step in `step_task`; see terrain::curriculum).
@@ -342,7 +343,7 @@ impl EnvGroup {
             // Bare physics: only guard against blow-ups.
             for slot in 0..self.envs.len() {
                 out.nonfinite[slot] = 0;
-                if !self.states[slot].is_finite() {
+                if !self.states[slot].is_sound() {
                     out.nonfinite[slot] = 1;
                     self.nonfinite_resets += 1;
                     self.reset_env(sh, slot, false);
@@ -361,14 +362,14 @@ impl EnvGroup {
         let ctx = sh.ctx;
         let cfg = &ctx.config;
         self.envs[slot].episode_step += 1;
-        let finite = self.states[slot].is_finite();
+        let sound = self.states[slot].is_sound();
         let terms = &mut out.reward_terms[slot * RewardTerm::COUNT..(slot + 1) * RewardTerm::COUNT];
-        out.nonfinite[slot] = u8::from(!finite);
+        out.nonfinite[slot] = u8::from(!sound);
         out.head_contact[slot] =
-            u8::from(finite && self.states[slot].head_force > cfg.rewards.contact_threshold);
+            u8::from(sound && self.states[slot].head_force > cfg.rewards.contact_threshold);
         out.episode_length[slot] = 0;
         let (terminated, truncated);
-        if finite {
+        if sound {
             let s = &self.states[slot];
             terminated = s.trunk_force > cfg.rewards.contact_threshold;
             truncated = !terminated && self.envs[slot].episode_step >= ctx.max_episode_steps;
@@ -412,7 +413,7 @@ impl EnvGroup {
         let range = |dim: usize| slot * dim..(slot + 1) * dim;
         if done {
             out.episode_length[slot] = self.envs[slot].episode_step;
-            if finite {
+            if sound {
                 let (env, s) = (&mut self.envs[slot], &self.states[slot]);
                 write_observation(sh, env, s, &mut out.final_obs[range(OBS_DIM)]);
                 write_labels(sh, s, &mut out.final_labels[range(LABEL_DIM)]);
@@ -422,7 +423,7 @@ impl EnvGroup {
             }
             out.final_privileged[range(PRIVILEGED_DIM)]
                 .copy_from_slice(&self.envs[slot].randomization.privileged(&cfg.randomization));
-            if autoreset || !finite {
+            if autoreset || !sound {
                 self.reset_env(sh, slot, false);
             }
         } else {

@@ -423,10 +423,11 @@ impl VecEnv {
         self.groups[i / epw].teleport(&self.model, i % epw, base, q);
     }
 
-    /// Make env `i`'s physics non-finite (test hook for the blow-up guard).
+    /// Set env `i`'s trunk speed to `speed` m/s (test hook for the blow-up guard: NaN for a
+    /// non-finite state, a huge finite speed for one that has not overflowed yet).
     #[doc(hidden)]
-    pub fn poison_env(&mut self, i: usize) {
+    pub fn poison_env(&mut self, i: usize, speed: f32) {
         let epw = self.ctx.config.env.envs_per_world;
-        self.groups[i / epw].world_mut().poison(i % epw);
+        self.groups[i / epw].world_mut().poison(i % epw, speed);
     }
 }

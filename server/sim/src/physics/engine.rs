@@ -216,12 +216,13 @@ impl PhysicsWorld {
         }
     }
 
-    /// Poison robot `slot` with a NaN velocity (test hook for the non-finite guard).
+    /// Set robot `slot`'s trunk velocity to `speed` m/s along x (test hook for the blow-up
+    /// guard).
     #[doc(hidden)]
-    pub fn poison(&mut self, slot: usize) {
+    pub fn poison(&mut self, slot: usize, speed: f32) {
         match self {
-            PhysicsWorld::Rapier(w) => w.poison(slot),
-            PhysicsWorld::Articulated(w) => w.poison(slot),
+            PhysicsWorld::Rapier(w) => w.poison(slot, speed),
+            PhysicsWorld::Articulated(w) => w.poison(slot, speed),
         }
     }
 

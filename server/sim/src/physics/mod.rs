@@ -15,5 +15,7 @@ pub use counters::PhysicsCounters;
 pub use engine::{EngineKind, PhysicsWorld};
 pub use joint_state::{joint_angle, joint_speed};
 pub use params::PhysicsParams;
-pub use robot_state::RobotState;
+pub use robot_state::{
+    MAX_SOUND_BASE_SPEED, MAX_SOUND_BASE_SPIN, MAX_SOUND_JOINT_SPEED, RobotState,
+};
 pub use world::{CONTACT_FORCE_THRESHOLD, RobotPhysicalParams, RobotWorld};

@@ -4,6 +4,15 @@ use rapier3d::math::{Rotation, Vec3};
 
 use crate::robot::{NUM_FEET, NUM_JOINTS};
 
+/// Trunk speed (m/s) beyond any this task reaches: pushes set 1 m/s, and random actions on the
+/// whole terrain grid reach 2. A faster state is a solver blow-up that has not overflowed yet
+/// (decision 0035).
+pub const MAX_SOUND_BASE_SPEED: f32 = 20.0;
+/// Trunk spin (rad/s) beyond any this task reaches (random actions: 9).
+pub const MAX_SOUND_BASE_SPIN: f32 = 50.0;
+/// Joint speed (rad/s) beyond any this task reaches (the motors' limit is 30; random actions: 16).
+pub const MAX_SOUND_JOINT_SPEED: f32 = 500.0;
+
 /// The measured state of one robot (world frame unless noted).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RobotState {
@@ -65,6 +74,15 @@ impl RobotState {
             && self.base_angvel.is_finite()
             && self.q.iter().chain(&self.qd).all(|v| v.is_finite())
             && self.foot_vel.iter().all(|v| v.is_finite())
+    }
+
+    /// Whether the state is finite and its speeds are ones a Go2 can have: the test the env
+    /// resets a blow-up by, before it overflows (decision 0035). NaN fails every comparison.
+    pub fn is_sound(&self) -> bool {
+        self.is_finite()
+            && self.base_linvel.length() <= MAX_SOUND_BASE_SPEED
+            && self.base_angvel.length() <= MAX_SOUND_BASE_SPIN
+            && self.qd.iter().all(|v| v.abs() <= MAX_SOUND_JOINT_SPEED)
     }
 }
 

@@ -602,11 +602,12 @@ impl RobotWorld {
         self.bodies[h].set_locked_axes(axes, true);
     }
 
-    /// Poison robot `slot` with a NaN velocity (test hook for the non-finite guard).
+    /// Set robot `slot`'s trunk velocity to `speed` m/s along x (test hook for the blow-up
+    /// guard: NaN makes it non-finite, a huge finite speed a blow-up not yet overflowed).
     #[doc(hidden)]
-    pub fn poison(&mut self, slot: usize) {
+    pub fn poison(&mut self, slot: usize, speed: f32) {
         let h = self.robots[slot].bodies[0];
-        self.bodies[h].set_linvel(Vec3::splat(f32::NAN), true);
+        self.bodies[h].set_linvel(Vec3::new(speed, 0.0, 0.0), true);
     }
 }
 

@@ -453,10 +453,11 @@ impl ArticulatedWorld {
         self.limits = on;
     }
 
-    /// Poison robot `slot` with a NaN velocity (test hook for the non-finite guard).
+    /// Set robot `slot`'s trunk velocity to `speed` m/s along x (test hook for the blow-up
+    /// guard: NaN makes it non-finite, a huge finite speed a blow-up not yet overflowed).
     #[doc(hidden)]
-    pub fn poison(&mut self, slot: usize) {
-        self.qvel[slot * self.nv] = f64::NAN;
+    pub fn poison(&mut self, slot: usize, speed: f32) {
+        self.qvel[slot * self.nv] = f64::from(speed);
     }
 
     /// Whether robot `slot` was found non-finite and frozen since its last reset.
