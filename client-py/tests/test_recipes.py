@@ -102,9 +102,9 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     (terrain, explore, stairs, clearance, articulated, per_mode, pace, quad_pace, anticipate) = (
         load_recipe("unified_terrain").stages[:9]
     )
-    bounded, higher_swing, heading, kernel, mirror, quad_heading, friction, run_on = load_recipe(
-        "unified_terrain"
-    ).stages[9:]
+    (bounded, higher_swing, heading, kernel, mirror, quad_heading, friction, run_on, levels) = (
+        load_recipe("unified_terrain").stages[9:]
+    )
     assert terrain.config.policy == settle.config.policy
     assert (
         terrain.config.env.task["rewards"]["weights"]
@@ -192,6 +192,16 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     # The seventeenth runs the sixteenth's settings on, checking M3 as before.
     assert run_on.config == friction.config and run_on.carry == "all"
     assert run_on.stop.milestone == "M3" and run_on.stop.check_every == 500
+    # The eighteenth gives each mode its own terrain level (decision 0036) and keeps the rest,
+    # the biped's own promotion lines (decision 0027) too.
+    kept = levels.config.env.task
+    assert kept["terrain_curriculum"] == {
+        "promote_share_biped": 0.4,
+        "demote_share_biped": 0.3,
+        "per_mode_levels": True,
+    }
+    assert {**kept, "terrain_curriculum": averaged["terrain_curriculum"]} == averaged
+    assert levels.config.ppo == friction.config.ppo and levels.carry == "all"
     # --set applies on top of every stage.
     small = load_recipe("unified_flat", ["env.num_envs=8"])
     assert [s.config.env.num_envs for s in small.stages] == [8, 8, 8]

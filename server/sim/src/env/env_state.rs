@@ -30,8 +30,13 @@ pub struct EnvState {
     pub randomization: Randomization,
     /// Spawn point (world x, y) of this episode.
     pub origin: [f32; 2],
-    /// Terrain difficulty level (row of the terrain grid).
+    /// Terrain difficulty level (row of the terrain grid) of the tile this episode is on.
     pub terrain_level: u32,
+    /// Each mode's own level (quad, biped) when the curriculum keeps one per mode
+    /// (`terrain_curriculum.per_mode_levels`, decision record 0036).
+    pub mode_levels: [u32; 2],
+    /// The mode this episode started in.
+    pub episode_mode: TaskMode,
     /// Terrain type (column of the terrain grid).
     pub terrain_type: u32,
     /// This episode's walked and commanded distances, for the terrain curriculum.

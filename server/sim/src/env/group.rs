@@ -91,6 +91,8 @@ impl EnvGroup {
                     randomization: nominal,
                     origin: [0.0; 2],
                     terrain_level: 0,
+                    mode_levels: [0; 2],
+                    episode_mode: TaskMode::Quad,
                     terrain_type: 0,
                     distance: EpisodeDistance::default(),
                 }
@@ -189,6 +191,11 @@ impl EnvGroup {
             .iter()
             .map(|(b, c, r)| (rot * local[*b].transform_point(*c)).z - r)
             .fold(0.0f32, f32::min);
+        let rule = &cfg.terrain_curriculum;
+        // With a level per mode the episode's first mode picks its tile, so it is drawn first
+        // (decision record 0036); otherwise after the tile, as it always was.
+        let early_mode =
+            (rule.per_mode_levels && sh.terrain.grid().is_some()).then(|| env.draw_mode(cfg));
         let (x, y) = match sh.terrain.grid() {
             None => sh.terrain.env_origin(env.id.index(), sh.num_envs),
             Some(grid) => {
@@ -197,17 +204,28 @@ impl EnvGroup {
                         sh.terrain
                             .initial_tile(env.id.index(), sh.num_envs, &mut env.rng);
                     env.terrain_level = level;
+                    env.mode_levels = [level; 2];
                     env.terrain_type = column;
                 } else if previous.is_sound() {
                     // The curriculum judges the episode that just ended by what the robot
                     // walked along its commands against what they asked for (both integrated
                     // per step in `step_task`; see terrain::curriculum).
-                    env.terrain_level = grid.next_level(
-                        env.terrain_level,
-                        env.distance,
-                        &cfg.terrain_curriculum,
-                        &mut env.rng,
-                    );
+                    if rule.per_mode_levels {
+                        let m = mode_index(env.episode_mode);
+                        let biped = env.episode_mode == TaskMode::Biped;
+                        env.mode_levels[m] = grid.next_level(
+                            env.mode_levels[m],
+                            env.distance.in_mode(biped),
+                            rule,
+                            &mut env.rng,
+                        );
+                    } else {
+                        env.terrain_level =
+                            grid.next_level(env.terrain_level, env.distance, rule, &mut env.rng);
+                    }
+                }
+                if let Some(mode) = early_mode {
+                    env.terrain_level = env.mode_levels[mode_index(mode)];
                 }
                 let o = grid.tile_origin(env.terrain_level, env.terrain_type);
                 (o.x, o.y)
@@ -220,7 +238,8 @@ impl EnvGroup {
         env.origin = [x, y];
         env.distance = EpisodeDistance::default();
 
-        let mode = env.draw_mode(cfg);
+        let mode = early_mode.unwrap_or_else(|| env.draw_mode(cfg));
+        env.episode_mode = mode;
         env.enter_mode(cfg, mode, None, true);
         env.episode_step = if first && cfg.env.random_initial_episode_step {
             env.rng.random_range(0..sh.ctx.max_episode_steps)
@@ -448,6 +467,11 @@ impl EnvGroup {
         }
         self.write_env(sh, slot, out);
     }
+}
+
+/// The entry of [`EnvState::mode_levels`] that holds `mode`'s level.
+fn mode_index(mode: TaskMode) -> usize {
+    usize::from(mode == TaskMode::Biped)
 }
 
 /// Height of each foot's frame origin (the sphere centre) above the highest terrain within

@@ -36,6 +36,8 @@ pub struct EpisodeDistance {
     pub commanded: f32,
     /// The part of `commanded` asked for in biped mode (m).
     pub commanded_biped: f32,
+    /// The part of `walked` walked in biped mode (m).
+    pub walked_biped: f32,
 }
 
 impl EpisodeDistance {
@@ -46,7 +48,11 @@ impl EpisodeDistance {
         let speed = command[0].hypot(command[1]);
         if speed > 0.0 && speed.is_finite() && velocity.iter().all(|v| v.is_finite()) {
             self.add_commanded(speed * dt, biped);
-            self.walked += (velocity[0] * command[0] + velocity[1] * command[1]) / speed * dt;
+            let walked = (velocity[0] * command[0] + velocity[1] * command[1]) / speed * dt;
+            self.walked += walked;
+            if biped {
+                self.walked_biped += walked;
+            }
         }
     }
 
@@ -64,6 +70,25 @@ impl EpisodeDistance {
         self.commanded += distance;
         if biped {
             self.commanded_biped += distance;
+        }
+    }
+
+    /// The part of the episode spent in one mode (biped or not), as if it were the whole.
+    pub fn in_mode(&self, biped: bool) -> Self {
+        if biped {
+            Self {
+                walked: self.walked_biped,
+                commanded: self.commanded_biped,
+                commanded_biped: self.commanded_biped,
+                walked_biped: self.walked_biped,
+            }
+        } else {
+            Self {
+                walked: self.walked - self.walked_biped,
+                commanded: self.commanded - self.commanded_biped,
+                commanded_biped: 0.0,
+                walked_biped: 0.0,
+            }
         }
     }
 
@@ -91,6 +116,10 @@ pub struct LevelRule {
     pub promote_share_biped: f32,
     /// `demote_share` for the distance commanded in biped mode.
     pub demote_share_biped: f32,
+    /// Each env keeps a level per mode: an episode starts on the tile of its first mode's
+    /// level, and only what it walked in that mode moves that level (decision record 0036).
+    /// Off: one level per env, judged on both modes together.
+    pub per_mode_levels: bool,
 }
 
 impl Default for LevelRule {
@@ -108,6 +137,7 @@ impl Default for LevelRule {
             // The same lines on two legs unless a run says otherwise (decision record 0027).
             promote_share_biped: 0.7,
             demote_share_biped: 0.5,
+            per_mode_levels: false,
         }
     }
 }

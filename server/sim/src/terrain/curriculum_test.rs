@@ -12,6 +12,7 @@ const RULE: LevelRule = LevelRule {
     demote_share: 0.5,
     promote_share_biped: 0.7,
     demote_share_biped: 0.5,
+    per_mode_levels: false,
 };
 
 const DT: f32 = 0.02;
@@ -26,6 +27,7 @@ fn level_after(current: u32, walked: f32, commanded: f32) -> u32 {
             walked,
             commanded,
             commanded_biped: 0.0,
+            walked_biped: 0.0,
         },
         &RULE,
         10,
@@ -118,6 +120,7 @@ fn passing_the_top_level_sends_to_a_random_level() {
         walked: 5.0,
         commanded: 5.0,
         commanded_biped: 0.0,
+        walked_biped: 0.0,
     };
     let mut seen = [false; 10];
     for _ in 0..500 {
@@ -187,6 +190,35 @@ fn each_mode_is_judged_against_its_own_line() {
     let mut d = EpisodeDistance::default();
     d.add_unlived([0.3, 0.4], 10.0, true);
     assert!((d.commanded_biped - 5.0).abs() < 1e-4 && d.walked == 0.0);
+}
+
+/// Decision record 0036: one mode's part of a mixed episode, judged as if it were the whole.
+#[test]
+fn a_mode_is_judged_on_its_own_part_of_the_episode() {
+    // 6 s on four legs at 0.8 m/s stalled at a riser (1.2 m of 4.8 m), then 12 s on two at
+    // 0.4 m/s climbing at 0.32 m/s (3.84 m of 4.8 m).
+    let mut d = EpisodeDistance::default();
+    for _ in 0..300 {
+        d.add_step([0.8, 0.0], [0.2, 0.0], DT, false);
+    }
+    for _ in 0..600 {
+        d.add_step([0.0, -0.4], [0.0, -0.32], DT, true);
+    }
+    assert!(
+        (d.walked - 5.04).abs() < 1e-3 && (d.walked_biped - 3.84).abs() < 1e-3,
+        "{d:?}"
+    );
+    let quad = d.in_mode(false);
+    assert!((quad.walked - 1.2).abs() < 1e-3 && (quad.commanded - 4.8).abs() < 1e-3);
+    assert_eq!((quad.commanded_biped, quad.walked_biped), (0.0, 0.0));
+    let biped = d.in_mode(true);
+    assert!((biped.walked - 3.84).abs() < 1e-3 && (biped.commanded - 4.8).abs() < 1e-3);
+    assert_eq!(biped.commanded_biped, biped.commanded);
+    // Together (5.04 m of 9.6 m, 53 %) the env stays; the quad's 25 % moves its level down,
+    // the biped's 80 % (and 3.84 m >= 2 m) moves its level up.
+    assert_eq!(level_under(&RULE, 3, d), 3);
+    assert_eq!(level_under(&RULE, 3, quad), 2);
+    assert_eq!(level_under(&RULE, 3, biped), 4);
 }
 
 #[test]

@@ -10,6 +10,7 @@ fn walked(walked: f32, commanded: f32) -> EpisodeDistance {
         walked,
         commanded,
         commanded_biped: 0.0,
+        walked_biped: 0.0,
     }
 }
 
