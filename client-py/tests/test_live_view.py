@@ -227,3 +227,21 @@ def test_an_unknown_evaluation_milestone_is_refused(fake_server, tmp_path, capsy
     args = ["train", "--server", address, "--log-dir", str(tmp_path), "--view", "save", "x.rrd"]
     assert main([*args, "--view-eval-milestone", "M9"]) == 2
     assert "--view-eval-milestone" in capsys.readouterr().err
+
+
+def test_panels_take_names_prefixes_one_level_down_and_patterns():
+    from unigait.live_view import _matches
+
+    names = [
+        "terrain_level",
+        "terrain_level/stairs_up",
+        "terrain_level/quad",
+        "terrain_level/stairs_up/quad",
+        "terrain_level/stairs_up/biped",
+        "terrain_levels",
+    ]
+    mean = ("terrain_level", "terrain_level/")
+    assert [n for n in names if _matches(n, mean)] == names[:3]
+    four_legs = ("terrain_level/*/quad",)
+    assert [n for n in names if _matches(n, four_legs)] == ["terrain_level/stairs_up/quad"]
+    assert not _matches("terrain_level//quad", four_legs)

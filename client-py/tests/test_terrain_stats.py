@@ -62,12 +62,26 @@ def test_means_per_type_and_mode_by_hand() -> None:
     # quad: (2 + 1 + 3 + 5 + 7 + 1) / 6 = 19 / 6; biped: (4 + 6) / 2 = 5.
     assert math.isclose(out["terrain_level/quad"], 19 / 6)
     assert out["terrain_level/biped"] == 5.0
+    # Per type and mode: stairs up on four legs (2 + 3 + 5) / 3, on two 4; obstacles 7 and 6;
+    # slope up 1 on four legs and never on two.
+    assert math.isclose(out["terrain_level/stairs_up/quad"], 10 / 3)
+    assert out["terrain_level/stairs_up/biped"] == 4.0
+    assert out["terrain_level/obstacles/quad"] == 7.0
+    assert out["terrain_level/obstacles/biped"] == 6.0
+    assert out["terrain_level/slope_up/quad"] == 1.0
+    assert math.isnan(out["terrain_level/slope_up/biped"])
     assert list(out) == [
         "terrain_level/stairs_up",
         "terrain_level/obstacles",
         "terrain_level/slope_up",
         "terrain_level/quad",
         "terrain_level/biped",
+        "terrain_level/stairs_up/quad",
+        "terrain_level/stairs_up/biped",
+        "terrain_level/obstacles/quad",
+        "terrain_level/obstacles/biped",
+        "terrain_level/slope_up/quad",
+        "terrain_level/slope_up/biped",
         "promoted/stairs_up",
         "demoted/stairs_up",
         "promoted/obstacles",

@@ -54,7 +54,9 @@ fn mean(sum: f64, count: f64) -> f64 {
 
 /// Sums of the terrain level over env-steps, by terrain type and by mode; `terrain_level/<type>`
 /// for every type of the batch and `terrain_level/quad`, `terrain_level/biped` always (NaN
-/// where a rollout had no such env-step). Then `promoted/<type>` and `demoted/<type>`: the share
+/// where a rollout had no such env-step), then `terrain_level/<type>/<mode>`, the mean level of
+/// the type's tiles over the env-steps taken in that mode (decision record 0036). Then
+/// `promoted/<type>` and `demoted/<type>`: the share
 /// of the type's ended episodes after which the env came back a level higher or lower (NaN
 /// without an ended episode), as the Python learner logs them.
 #[derive(Debug, Clone)]
@@ -65,6 +67,9 @@ pub struct TerrainLevelStats {
     type_steps: Vec<f64>,
     mode_sum: [f64; 2],
     mode_steps: [f64; 2],
+    /// Per type and mode ([type][mode]).
+    cell_sum: Vec<[f64; 2]>,
+    cell_steps: Vec<[f64; 2]>,
     ends: Vec<f64>,
     ups: Vec<f64>,
     downs: Vec<f64>,
@@ -92,6 +97,8 @@ impl TerrainLevelStats {
             type_steps: vec![0.0; k],
             mode_sum: [0.0; 2],
             mode_steps: [0.0; 2],
+            cell_sum: vec![[0.0; 2]; k],
+            cell_steps: vec![[0.0; 2]; k],
             ends: vec![0.0; k],
             ups: vec![0.0; k],
             downs: vec![0.0; k],
@@ -123,6 +130,8 @@ impl TerrainLevelStats {
             let k = usize::from(m == BIPED_MODE);
             self.mode_sum[k] += l;
             self.mode_steps[k] += 1.0;
+            self.cell_sum[t][k] += l;
+            self.cell_steps[t][k] += 1.0;
         }
     }
 
@@ -141,6 +150,12 @@ impl TerrainLevelStats {
             let m = mean(self.mode_sum[k], self.mode_steps[k]);
             out.push((format!("terrain_level/{name}"), m));
         }
+        for (t, kind) in self.types.iter().enumerate() {
+            for (k, name) in MODES.iter().enumerate() {
+                let m = mean(self.cell_sum[t][k], self.cell_steps[t][k]);
+                out.push((format!("terrain_level/{kind}/{name}"), m));
+            }
+        }
         for (k, name) in self.types.iter().enumerate() {
             out.push((format!("promoted/{name}"), mean(self.ups[k], self.ends[k])));
             out.push((format!("demoted/{name}"), mean(self.downs[k], self.ends[k])));
@@ -149,6 +164,8 @@ impl TerrainLevelStats {
         self.type_steps.fill(0.0);
         self.mode_sum = [0.0; 2];
         self.mode_steps = [0.0; 2];
+        self.cell_sum.fill([0.0; 2]);
+        self.cell_steps.fill([0.0; 2]);
         self.ends.fill(0.0);
         self.ups.fill(0.0);
         self.downs.fill(0.0);
@@ -376,6 +393,26 @@ mod tests {
         assert_eq!(get("terrain_level/b"), 5.0);
         assert_eq!(get("terrain_level/quad"), (1.0 + 3.0 + 5.0) / 3.0);
         assert_eq!(get("terrain_level/biped"), (4.0 + 2.0 + 6.0) / 3.0);
+        // Per type and mode, in the Python learner's order: "a" on four legs (1 + 3 + 5) / 3,
+        // on two 2; "b" never on four legs, on two (4 + 6) / 2.
+        assert_eq!(get("terrain_level/a/quad"), 3.0);
+        assert_eq!(get("terrain_level/a/biped"), 2.0);
+        assert!(get("terrain_level/b/quad").is_nan());
+        assert_eq!(get("terrain_level/b/biped"), 5.0);
+        let names: Vec<&str> = out.iter().map(|(n, _)| n.as_str()).take(8).collect();
+        assert_eq!(
+            names,
+            [
+                "terrain_level/a",
+                "terrain_level/b",
+                "terrain_level/quad",
+                "terrain_level/biped",
+                "terrain_level/a/quad",
+                "terrain_level/a/biped",
+                "terrain_level/b/quad",
+                "terrain_level/b/biped",
+            ]
+        );
         // Cleared: no env-steps since, so every mean is NaN.
         assert!(stats.summary().iter().all(|(_, v)| v.is_nan()));
     }

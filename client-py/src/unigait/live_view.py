@@ -18,6 +18,7 @@ from __future__ import annotations
 import datetime
 import math
 import os
+import re
 import shutil
 import signal
 import socket
@@ -237,12 +238,15 @@ def curve(name: str) -> str:
     return "/".join([CURVES, *(rr.escape_entity_path_part(p) for p in name.split("/"))])
 
 
-#: Panels of the first tabs: (tab, panel title, scalar names or prefixes ending in ``/``).
+#: Panels of the first tabs: (tab, panel title, scalar names, prefixes ending in ``/`` (one
+#: level below them) or patterns whose ``*`` stands for one level).
 PANELS: tuple[tuple[str, str, tuple[str, ...]], ...] = (
     ("progress", "mean episode reward", ("mean_episode_reward",)),
     ("progress", "mean reward per step", ("mean_step_reward",)),
     ("progress", "mean episode length (steps)", ("mean_episode_length",)),
     ("progress", "terrain level (mean, per type, per mode)", ("terrain_level", "terrain_level/")),
+    ("progress", "terrain level per type, four legs", ("terrain_level/*/quad",)),
+    ("progress", "terrain level per type, two legs", ("terrain_level/*/biped",)),
     ("progress", "upright indicator threshold (rad)", ("curriculum/upright_pitch",)),
     ("progress", "biped mode: share and pose", ("biped_share", "biped_pose/")),
     ("optimiser", "learning rate", ("learning_rate",)),
@@ -258,7 +262,20 @@ PANELS: tuple[tuple[str, str, tuple[str, ...]], ...] = (
 
 
 def _matches(name: str, keys: Sequence[str]) -> bool:
-    return any(name.startswith(k) if k.endswith("/") else name == k for k in keys)
+    """Whether ``name`` is one of ``keys``: a name, a prefix or a pattern.
+
+    A prefix ``a/`` takes ``a/b``, not ``a/b/c``; a pattern ``a/*/c`` takes ``a/b/c``.
+    """
+    for key in keys:
+        if "*" in key:
+            if re.fullmatch(re.escape(key).replace(r"\*", "[^/]+"), name):
+                return True
+        elif key.endswith("/"):
+            if name.startswith(key) and "/" not in name[len(key) :]:
+                return True
+        elif name == key:
+            return True
+    return False
 
 
 def blueprint(

@@ -72,7 +72,10 @@ class TerrainLevelStats:
 
     Scalars ``terrain_level/<type>`` for every type of the batch's grid and
     ``terrain_level/quad`` / ``terrain_level/biped`` always, so the CSV has its columns from the
-    first iteration (NaN where a rollout had no such env-step). Then ``promoted/<type>`` and
+    first iteration (NaN where a rollout had no such env-step), then
+    ``terrain_level/<type>/<mode>``: the mean level of the type's tiles over the env-steps taken
+    in that mode (with a level per mode, decision 0036, where each mode's climbing shows). Then
+    ``promoted/<type>`` and
     ``demoted/<type>``: the share of the type's episodes ended in the rollout after which the env
     came back a level higher or lower (NaN without an ended episode). A row's top level promotes
     to a random level (legged_gym's rule), which counts here by where it lands.
@@ -103,6 +106,9 @@ class TerrainLevelStats:
         self.type_steps = torch.zeros(len(self.types), dtype=torch.float64, device=self.device)
         self.mode_sum = torch.zeros(len(MODES), dtype=torch.float64, device=self.device)
         self.mode_steps = torch.zeros(len(MODES), dtype=torch.float64, device=self.device)
+        cells = len(self.types) * len(MODES)
+        self.cell_sum = torch.zeros(cells, dtype=torch.float64, device=self.device)
+        self.cell_steps = torch.zeros(cells, dtype=torch.float64, device=self.device)
         self.ends = torch.zeros(len(self.types), dtype=torch.float64, device=self.device)
         self.ups = torch.zeros(len(self.types), dtype=torch.float64, device=self.device)
         self.downs = torch.zeros(len(self.types), dtype=torch.float64, device=self.device)
@@ -133,6 +139,10 @@ class TerrainLevelStats:
         self.type_steps += torch.bincount(self.type_of_env, minlength=len(self.types))
         self.mode_sum += torch.bincount(md, weights=lv, minlength=len(MODES))
         self.mode_steps += torch.bincount(md, minlength=len(MODES))
+        cell = self.type_of_env * len(MODES) + md
+        cells = len(self.types) * len(MODES)
+        self.cell_sum += torch.bincount(cell, weights=lv, minlength=cells)
+        self.cell_steps += torch.bincount(cell, minlength=cells)
 
     def summary(self) -> dict[str, float]:
         """Mean level per type and per mode, and level moves per type, since the last summary.
@@ -149,6 +159,12 @@ class TerrainLevelStats:
         }
         for k, name in enumerate(MODES):
             out[f"terrain_level/{name}"] = mean(self.mode_sum[k], self.mode_steps[k])
+        for t, kind in enumerate(self.types):
+            for k, name in enumerate(MODES):
+                cell = t * len(MODES) + k
+                out[f"terrain_level/{kind}/{name}"] = mean(
+                    self.cell_sum[cell], self.cell_steps[cell]
+                )
         for k, name in enumerate(self.types):
             out[f"promoted/{name}"] = mean(self.ups[k], self.ends[k])
             out[f"demoted/{name}"] = mean(self.downs[k], self.ends[k])
