@@ -15,6 +15,7 @@ from test_recipes import two_stages
 
 from unigait.cli import main, training_command
 from unigait.live_view import CURVES, EVENTS, ViewError, parse_view, recording_id
+from unigait.milestones import milestone
 
 rr = pytest.importorskip("rerun")
 from rerun.experimental import RrdReader  # noqa: E402
@@ -206,7 +207,10 @@ def test_every_m_iterations_a_milestone_evaluation_on_a_fixed_seed_goes_to_the_v
     _, series, events, _ = read_rrd(view)
     assert series["eval/criteria_met"] == {2: 0.0, 4: 0.0}  # the fake reports no M1 metric
     assert series["eval/tracking_quad/num_envs"] == {2: 64.0, 4: 64.0}
-    assert events[1:] == ["M1: 0/3 criteria met on seed 2000"] * 2
+    # The verdict says what is missing, as the run's log does.
+    unmet = "; ".join(milestone("M1").unmet({}))
+    assert unmet.startswith("quad") and "missing" in unmet
+    assert events[1:] == [f"M1: 0/3 criteria met on seed 2000; unmet: {unmet}"] * 2
     assert sorted(series["iteration"]) == [1, 2, 3, 4, 5]
 
     # A recipe: the view's evaluations at the recipe's iterations 2 and 4, across its stages.

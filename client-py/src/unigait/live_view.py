@@ -444,10 +444,11 @@ class LiveView:
             if panel not in self.eval_panels:
                 self.eval_panels.append(panel)
         met, total = record["criteria_met"], record["criteria"]
-        self.event(
-            int(record["iteration"]),
-            f"{target.name}: {met}/{total} criteria met on seed {record['seed']}",
-        )
+        verdict = f"{target.name}: {met}/{total} criteria met on seed {record['seed']}"
+        unmet = record.get("unmet") or []
+        if unmet:  # what is missing, with its figures, as the run's log prints it
+            verdict += "; unmet: " + "; ".join(str(u) for u in unmet)
+        self.event(int(record["iteration"]), verdict)
         self.log(scalars)
 
     def send_blueprint(self) -> None:
