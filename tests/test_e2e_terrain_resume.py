@@ -63,6 +63,43 @@ def test_a_resumed_curriculum_run_starts_on_its_checkpoints_levels(server: str, 
     assert asked[0].terrain_levels == ()
 
 
+def test_a_resumed_run_with_a_level_per_mode_starts_each_mode_where_it_was(
+    server: str, tmp_path: Path
+):
+    """Decision record 0036: the checkpoint holds both modes' levels and hands them back."""
+    per_mode = [*TINY, "env.task.terrain_curriculum.per_mode_levels=true"]
+    cfg = load_config(None, [*per_mode, "runner.max_iterations=2", f"runner.log_dir='{tmp_path}'"])
+    train(cfg, lambda c: open_session(server, c))
+    checkpoint = tmp_path / "model_2.pt"
+    state = torch.load(checkpoint, weights_only=False)
+    # No episode ended in 8 steps: both modes are still on each env's drawn level.
+    pairs = state["terrain_mode_levels"]
+    assert pairs == [level for level in state["terrain_levels"] for _ in range(2)]
+    carried = [x for i in range(20) for x in (i % 3, 9 - i % 5)]  # (quad, biped) per env
+    state["terrain_mode_levels"] = carried
+    torch.save(state, checkpoint)
+
+    asked: list[SessionConfig] = []
+    initial: list = []
+
+    def recording(config: SessionConfig):
+        asked.append(config)
+        session = open_session(server, config)
+        initial.append(session.initial)
+        return session
+
+    cfg = load_config(None, [*per_mode, "runner.max_iterations=3", f"runner.log_dir='{tmp_path}'"])
+    train(cfg, recording, resume=checkpoint)
+    assert list(asked[0].terrain_mode_levels) == carried
+    first = initial[0]
+    assert first.mode_levels.flatten().tolist() == carried
+    # Each env stands on the level of the mode it starts in (mode 1 is biped: the second).
+    for i, (mode, tile) in enumerate(zip(first.mode, first.terrain_level, strict=True)):
+        assert tile == carried[2 * i + int(mode == 1)], i
+    resumed = torch.load(tmp_path / "model_3.pt", weights_only=False)
+    assert len(resumed["terrain_mode_levels"]) == 40
+
+
 RECIPE = """
 description = "two tiny curriculum stages on the real server"
 

@@ -60,6 +60,10 @@ pub struct Header {
     pub upright_pitch: Option<f32>,
     /// Each env's terrain level at the last rollout's end.
     pub terrain_levels: Vec<u32>,
+    /// Each env's (quad, biped) levels at the last rollout's end (decision record 0036; empty
+    /// in checkpoints written before they were recorded).
+    #[serde(default)]
+    pub terrain_mode_levels: Vec<u32>,
     /// The physics engine the session trained on, as its spec named it ("" in checkpoints
     /// written before it was recorded: see [`Header::trained_engine`]).
     #[serde(default)]

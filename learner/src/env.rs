@@ -96,6 +96,8 @@ pub struct StepData {
     pub head_contact: Option<Vec<bool>>,
     /// Envs the server reset after a physics blow-up in this step.
     pub nonfinite_resets: u32,
+    /// [N, 2] each env's (quad, biped) levels (empty from servers that do not report them).
+    pub mode_levels: Vec<u32>,
 }
 
 fn f32s(t: &Option<v1::Tensor>, name: &str) -> Result<Option<Vec<f32>>> {
@@ -146,6 +148,10 @@ impl StepData {
             },
             upright_pitch: r.upright_pitch,
             nonfinite_resets: r.nonfinite_resets,
+            mode_levels: match &r.mode_levels {
+                Some(t) => t.u32_values("mode_levels")?.into_owned(),
+                None => Vec::new(),
+            },
             head_contact: match &r.head_contact {
                 Some(t) => Some(
                     t.u8_values("head_contact")?

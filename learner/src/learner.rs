@@ -28,8 +28,18 @@ const HALF_LN_2PI: f32 = 0.918_938_5;
 /// One iteration's scalars, in the Python learner's CSV order.
 pub type Scalars = Vec<(String, f64)>;
 
+/// Where a session's curriculum envs start: each env's level, and its (quad, biped) levels
+/// when the run keeps a level per mode (decision record 0036). Empty: drawn afresh.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct StartLevels {
+    /// One level per env.
+    pub levels: Vec<u32>,
+    /// Two per env, (quad, biped).
+    pub mode_levels: Vec<u32>,
+}
+
 /// The session a training run opens (reward terms on: the log needs them).
-pub fn session_config(cfg: &TrainConfig, terrain_levels: &[u32]) -> v1::SessionConfig {
+pub fn session_config(cfg: &TrainConfig, start: &StartLevels) -> v1::SessionConfig {
     v1::SessionConfig {
         num_envs: cfg.env.num_envs,
         seed: cfg.env.seed,
@@ -37,7 +47,8 @@ pub fn session_config(cfg: &TrainConfig, terrain_levels: &[u32]) -> v1::SessionC
         terrain: Some(v1::TerrainConfig {
             kind: cfg.env.terrain.clone(),
             level: cfg.env.terrain_level,
-            initial_levels: terrain_levels.to_vec(),
+            initial_levels: start.levels.clone(),
+            initial_mode_levels: start.mode_levels.clone(),
         }),
         autoreset: v1::AutoresetMode::SameStep as i32,
         reward_terms: true,
@@ -152,6 +163,9 @@ pub struct Learner {
     pub upright_pitch: Option<f32>,
     /// Each env's terrain level at the end of the last rollout.
     pub terrain_levels: Vec<u32>,
+    /// Each env's (quad, biped) levels at the end of the last rollout (empty from servers that
+    /// do not report them).
+    pub terrain_mode_levels: Vec<u32>,
     /// Where these networks come from, saved with every checkpoint.
     pub provenance: serde_json::Value,
     /// The physics engine the envs step in (the session's spec says), saved with every
@@ -216,6 +230,7 @@ impl Learner {
             total_env_steps: 0,
             upright_pitch: None,
             terrain_levels: Vec::new(),
+            terrain_mode_levels: Vec::new(),
             provenance: serde_json::Value::Null,
             physics_engine: cfg
                 .task_engine()
@@ -392,6 +407,7 @@ impl Learner {
             timers.inference += t2.elapsed();
         }
         self.terrain_levels = envs.last.terrain_level.clone();
+        self.terrain_mode_levels = envs.last.mode_levels.clone();
         let t3 = Instant::now();
         let last_values = self.values(envs.last.critic_obs(&d), n)?;
         let p = &self.cfg.ppo;
@@ -577,6 +593,7 @@ impl Learner {
                 provenance: self.provenance.clone(),
                 upright_pitch: self.upright_pitch,
                 terrain_levels: self.terrain_levels.clone(),
+                terrain_mode_levels: self.terrain_mode_levels.clone(),
                 physics_engine: self.physics_engine.clone(),
                 actor_critic,
                 estimator,
@@ -654,6 +671,7 @@ impl Learner {
             self.update_rng = Rng::new(h.update_rng);
             self.upright_pitch = h.upright_pitch;
             self.terrain_levels = h.terrain_levels.clone();
+            self.terrain_mode_levels = h.terrain_mode_levels.clone();
             self.provenance = h.provenance.clone();
         }
         self.ppo.learning_rate = if adaptive {

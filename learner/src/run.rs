@@ -17,7 +17,7 @@ use unigait_client::Client;
 
 use crate::checkpoint::Checkpoint;
 use crate::config::{TrainConfig, engine_overrides, merged, set_line};
-use crate::learner::{Envs, Learner, Scalars, session_config};
+use crate::learner::{Envs, Learner, Scalars, StartLevels, session_config};
 use crate::log::ProgressLog;
 use crate::milestone::{self, load_milestone, milestones_file};
 use crate::mirror::ActorMirror;
@@ -173,9 +173,9 @@ pub fn policy_onnx(learner: &Learner) -> Result<Vec<u8>> {
 /// The config a stage runs with, given the checkpoint it starts from: the upright curriculum
 /// starts where that run left it, a curriculum run's envs on the levels they had reached (as
 /// the Python learner's `resume_upright_curriculum` and `resumed_terrain_levels`).
-fn resumed_config(mut cfg: TrainConfig, source: Option<&Checkpoint>) -> (TrainConfig, Vec<u32>) {
+fn resumed_config(mut cfg: TrainConfig, source: Option<&Checkpoint>) -> (TrainConfig, StartLevels) {
     let Some(ck) = source else {
-        return (cfg, Vec::new());
+        return (cfg, StartLevels::default());
     };
     let curriculum_on = cfg
         .env
@@ -205,13 +205,21 @@ fn resumed_config(mut cfg: TrainConfig, source: Option<&Checkpoint>) -> (TrainCo
         .collect();
         cfg.env.task = crate::config::merged(std::mem::take(&mut cfg.env.task), &update);
     }
-    let levels = &ck.header.terrain_levels;
-    let levels = if cfg.env.terrain == "curriculum" && levels.len() == cfg.env.num_envs as usize {
-        levels.clone()
+    let (levels, mode_levels) = (&ck.header.terrain_levels, &ck.header.terrain_mode_levels);
+    let n = cfg.env.num_envs as usize;
+    let start = if cfg.env.terrain == "curriculum" && levels.len() == n {
+        StartLevels {
+            levels: levels.clone(),
+            mode_levels: if mode_levels.len() == 2 * n {
+                mode_levels.clone()
+            } else {
+                Vec::new()
+            },
+        }
     } else {
-        Vec::new()
+        StartLevels::default()
     };
-    (cfg, levels)
+    (cfg, start)
 }
 
 /// One line per iteration on the log.
@@ -267,10 +275,10 @@ async fn run_stage(
         }
     };
     let source_ck = source.as_deref().map(Checkpoint::load).transpose()?;
-    let (cfg, levels) = resumed_config(stage.config.clone(), source_ck.as_ref());
+    let (cfg, start) = resumed_config(stage.config.clone(), source_ck.as_ref());
     let mut envs = Envs::open(
         client,
-        session_config(&cfg, &levels),
+        session_config(&cfg, &start),
         cfg.policy.history_length,
     )
     .await?;

@@ -349,6 +349,7 @@ mod tests {
             upright_pitch: None,
             head_contact: Some(head.to_vec()),
             nonfinite_resets: 0,
+            mode_levels: Vec::new(),
         }
     }
 

@@ -183,6 +183,9 @@ fn trains_resumes_and_exports_against_the_real_server() {
     );
     let ck2 = Checkpoint::load(&stage.join("model_2.ckpt")).unwrap();
     assert_eq!(ck2.header.iteration, 2);
+    // Each env's level and its (quad, biped) levels, as the server reported them: flat ground.
+    assert_eq!(ck2.header.terrain_levels, vec![0; ENVS as usize]);
+    assert_eq!(ck2.header.terrain_mode_levels, vec![0; 2 * ENVS as usize]);
     // The engine the session reported is recorded, and named in the stage's policy.
     let engine = ck2.header.physics_engine.clone();
     assert!(

@@ -330,10 +330,13 @@ def load_config(path: str | Path | None = None, overrides: list[str] | None = No
     return apply(cfg, grouped)
 
 
-def session_config(cfg: TrainConfig, terrain_levels: Sequence[int] = ()) -> SessionConfig:
+def session_config(
+    cfg: TrainConfig, terrain_levels: Sequence[int] = (), mode_levels: Sequence[int] = ()
+) -> SessionConfig:
     """The session a training run opens (reward terms on: the logger needs them).
 
-    ``terrain_levels``: each env's starting curriculum level (a resumed run's), or empty.
+    ``terrain_levels``: each env's starting curriculum level (a resumed run's), or empty;
+    ``mode_levels``: each env's starting (quad, biped) levels, two per env, or empty.
     """
     return SessionConfig(
         num_envs=cfg.env.num_envs,
@@ -342,6 +345,7 @@ def session_config(cfg: TrainConfig, terrain_levels: Sequence[int] = ()) -> Sess
         terrain=cfg.env.terrain,
         terrain_level=cfg.env.terrain_level,
         terrain_levels=tuple(terrain_levels),
+        terrain_mode_levels=tuple(mode_levels),
         reward_terms=True,
     )
 
@@ -356,3 +360,15 @@ def resumed_terrain_levels(cfg: TrainConfig, checkpoint: dict[str, Any]) -> list
     if cfg.env.terrain != "curriculum" or len(levels) != cfg.env.num_envs:
         return []
     return levels
+
+
+def resumed_mode_levels(cfg: TrainConfig, checkpoint: dict[str, Any]) -> list[int]:
+    """Each env's (quad, biped) levels ``checkpoint``'s envs had reached, two per env.
+
+    Empty unless :func:`resumed_terrain_levels` gives levels and the checkpoint holds both
+    modes' (written by a run on a server that reports them; decision record 0036).
+    """
+    pairs = [int(x) for x in checkpoint.get("terrain_mode_levels", [])]
+    if not resumed_terrain_levels(cfg, checkpoint) or len(pairs) != 2 * cfg.env.num_envs:
+        return []
+    return pairs

@@ -252,6 +252,7 @@ pub fn run(args: &BenchArgs) -> Result<BenchReport> {
         kind: args.terrain.clone(),
         level: args.level,
         initial_levels: Vec::new(),
+        initial_mode_levels: Vec::new(),
     };
     let (terrain, _) = unigait_server::terrain_for(Some(&selection), args.seed, args.envs)?;
     let options = VecEnvOptions {

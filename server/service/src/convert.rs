@@ -180,6 +180,7 @@ pub fn step_result(
         final_env_ids: Some(u32_tensor(&ended, &[k])),
         mode: Some(u8_tensor(&out.mode, &[n])),
         terrain_level: Some(u32_tensor(&out.terrain_level, &[n])),
+        mode_levels: Some(u32_tensor(&out.mode_levels, &[n, 2])),
         head_contact: Some(u8_tensor(&out.head_contact, &[n])),
         nonfinite: Some(u8_tensor(&out.nonfinite, &[n])),
         step_count,

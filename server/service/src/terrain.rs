@@ -26,6 +26,14 @@ pub fn terrain_for(
             initial_levels.len()
         )));
     }
+    let mode_levels = config.map_or(&[][..], |c| c.initial_mode_levels.as_slice());
+    if !mode_levels.is_empty() && (kind != "curriculum" || mode_levels.len() != 2 * num_envs) {
+        return Err(ServiceError::InvalidArgument(format!(
+            "terrain.initial_mode_levels: {} levels for a `{kind}` terrain of {num_envs} envs; \
+             they are for \"curriculum\", two per env (quad, biped)",
+            mode_levels.len()
+        )));
+    }
     let spec_kind = match kind {
         "" | "flat" => return Ok((Arc::new(Terrain::Flat), "flat".into())),
         "curriculum" => TerrainKind::Curriculum {
@@ -56,6 +64,10 @@ pub fn terrain_for(
     let mut terrain = Terrain::from_spec(&spec, seed)?;
     if !initial_levels.is_empty() {
         terrain = terrain.with_initial_levels(initial_levels.to_vec())?;
+    }
+    if !mode_levels.is_empty() {
+        let pairs = mode_levels.chunks_exact(2).map(|p| [p[0], p[1]]).collect();
+        terrain = terrain.with_initial_mode_levels(pairs)?;
     }
     let name = if kind == "curriculum" {
         "curriculum".to_string()

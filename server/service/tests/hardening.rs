@@ -905,15 +905,102 @@ async fn issue_14_a_policy_over_its_time_limit_is_resource_exhausted() {
 
 /// A session config with `terrain.initial_levels`.
 fn with_levels(n: u32, kind: &str, levels: Vec<u32>) -> v1::CreateSessionRequest {
-    let mut request = config(n, 3, "");
+    with_mode_levels(n, kind, levels, Vec::new(), "")
+}
+
+/// A session config with `terrain.initial_levels`, `terrain.initial_mode_levels` and task
+/// overrides.
+fn with_mode_levels(
+    n: u32,
+    kind: &str,
+    levels: Vec<u32>,
+    mode_levels: Vec<u32>,
+    task: &str,
+) -> v1::CreateSessionRequest {
+    let mut request = config(n, 3, task);
     if let Some(c) = request.config.as_mut() {
         c.terrain = Some(v1::TerrainConfig {
             kind: kind.into(),
             level: 1,
             initial_levels: levels,
+            initial_mode_levels: mode_levels,
         });
     }
     request
+}
+
+fn u32s(t: Option<v1::Tensor>, name: &str) -> Vec<u32> {
+    t.expect(name).u32_values(name).expect("u32").into_owned()
+}
+
+/// Decision record 0036: a resumed run hands back each env's (quad, biped) levels; with a
+/// level per mode the envs start on the level of the mode they start in, and every step
+/// reports both. Without it both report the env's one level. Bad counts are refused.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_curriculum_session_starts_each_mode_on_the_level_it_asks_for() {
+    let server = TestServer::with_limits(Limits::default()).await;
+    let mut c = server.client().await;
+    let levels: Vec<u32> = vec![5; 8];
+    let pairs: Vec<u32> = (0..8).flat_map(|i| [i % 3, 9 - i % 4]).collect();
+    let per_mode = "[terrain_curriculum]\nper_mode_levels = true\n";
+    let created = c
+        .create_session(with_mode_levels(
+            8,
+            "curriculum",
+            levels.clone(),
+            pairs.clone(),
+            per_mode,
+        ))
+        .await
+        .expect("a session with two levels per env")
+        .into_inner();
+    let initial = created.initial.expect("initial step");
+    assert_eq!(u32s(initial.mode_levels, "mode_levels"), pairs);
+    let modes = initial
+        .mode
+        .expect("mode")
+        .u8_values("mode")
+        .expect("u8")
+        .to_vec();
+    let tiles = u32s(initial.terrain_level, "terrain_level");
+    for (i, (&mode, &tile)) in modes.iter().zip(&tiles).enumerate() {
+        // Mode 1 is biped: the second of the pair.
+        let own = pairs[2 * i + usize::from(mode == 1)];
+        assert_eq!(tile, own, "env {i} in mode {mode}");
+    }
+    // Without a level per mode the pairs are kept aside and both modes report the one level.
+    let created = c
+        .create_session(with_mode_levels(
+            8,
+            "curriculum",
+            levels.clone(),
+            pairs.clone(),
+            "",
+        ))
+        .await
+        .expect("a session with one level per env")
+        .into_inner();
+    let initial = created.initial.expect("initial step");
+    assert_eq!(u32s(initial.mode_levels, "mode_levels"), vec![5; 16]);
+    assert_eq!(u32s(initial.terrain_level, "terrain_level"), levels);
+    for (kind, bad) in [
+        ("curriculum", vec![0; 15]),
+        ("curriculum", [vec![0; 15], vec![10]].concat()),
+        ("stairs_up", vec![0; 16]),
+    ] {
+        let status = c
+            .create_session(with_mode_levels(8, kind, Vec::new(), bad.clone(), per_mode))
+            .await
+            .expect_err("refused");
+        assert_eq!(
+            status.code(),
+            Code::InvalidArgument,
+            "{kind} {bad:?}: {status}"
+        );
+        assert!(status.message().contains("initial_mode_levels"), "{status}");
+    }
+    assert_eq!(active_sessions(&mut c).await.0, 2);
+    server.shutdown().await;
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -577,18 +577,21 @@ fn process_cpu_seconds() -> f64 {
 }
 
 /// Decision record 0036: with a level per mode, each episode starts on the tile of its first
-/// mode's level and moves only that level. Robots stand still (zero actions) on levels 3 under
-/// 0.5 m/s commands in 1 s episodes without a mode switch, so every episode walks under half
-/// its commanded distance and demotes the level of the mode it started in, and no other.
+/// mode's level, and only what the robot walked in that mode moves that level. Robots stand
+/// still (zero actions) from level 8 through 1 s episodes whose mode is redrawn every 0.1 s:
+/// four legs are commanded nothing, two legs 0.5 m/s. An episode started on two legs walked
+/// under half of what its biped part asked and demotes the biped's level; one started on four
+/// legs was asked nothing on four legs and keeps the quad's level, though judged as a whole it
+/// would be demoted for its biped part.
 #[test]
 fn each_mode_keeps_its_own_level() {
     let cfg = TaskConfig::embedded_default()
         .with_overrides(
             "[terrain_curriculum]\nper_mode_levels = true\n\
              [env]\nepisode_length_s = 1.0\nrandom_initial_episode_step = false\n\
-             [modes]\nresampling_time_s = 600.0\n\
+             [modes]\nresampling_time_s = 0.1\n\
              [commands]\nresampling_time_s = 600.0\nzero_below = 0.0\n\
-             quad = { vx = [0.5, 0.5], vy = [0.0, 0.0], wz = [0.0, 0.0] }\n\
+             quad = { vx = [0.0, 0.0], vy = [0.0, 0.0], wz = [0.0, 0.0] }\n\
              biped = { vx = [0.5, 0.5], vy = [0.0, 0.0], wz = [0.0, 0.0] }\n\
              [init]\nlinvel = [0.0, 0.0]\nangvel = [0.0, 0.0]\npitch = [0.0, 0.0]\n\
              thigh = [0.0, 0.0]\ncalf = [0.0, 0.0]\nhip = [0.0, 0.0]\n",
@@ -597,22 +600,20 @@ fn each_mode_keeps_its_own_level() {
     let n = 16;
     let terrain = Terrain::from_spec(&curriculum(9), 0)
         .expect("terrain")
-        .with_initial_levels(vec![3; n])
+        .with_initial_levels(vec![8; n])
         .expect("levels");
     let mut env = batch_on(terrain, cfg, n, 4);
     let zeros = vec![0.0; n * NUM_JOINTS];
     let slot = |m: TaskMode| usize::from(m == TaskMode::Biped);
-    // Episodes started per env and mode.
-    let mut started: Vec<[u32; 2]> = (0..n)
+    // Biped-started episodes per env.
+    let mut biped_started: Vec<u32> = (0..n)
         .map(|i| {
             let e = env.env_state(i);
-            assert_eq!(e.mode_levels, [3, 3]);
-            let mut s = [0; 2];
-            s[slot(e.episode_mode)] = 1;
-            s
+            assert_eq!(e.mode_levels, [8, 8]);
+            u32::from(e.episode_mode == TaskMode::Biped)
         })
         .collect();
-    let mut episodes = 0;
+    let (mut episodes, mut switches) = (0, 0);
     for _ in 0..6 * 50 {
         let before: Vec<_> = (0..n).map(|i| env.env_state(i).clone()).collect();
         let out = env.step(&zeros).expect("step").clone();
@@ -623,36 +624,33 @@ fn each_mode_keeps_its_own_level() {
                 e.mode_levels[slot(e.episode_mode)],
                 "env {i}"
             );
-            if out.terminated[i] == 0 && out.truncated[i] == 0 {
+            assert_eq!(out.terminated[i], 0, "env {i} fell");
+            if out.truncated[i] == 0 {
                 assert_eq!(e.mode_levels, b.mode_levels, "env {i} moved mid-episode");
+                switches += usize::from(e.mode != b.mode);
                 continue;
             }
             episodes += 1;
-            let (m, other) = (slot(b.episode_mode), 1 - slot(b.episode_mode));
-            assert_eq!(
-                e.mode_levels[m],
-                b.mode_levels[m].saturating_sub(1),
-                "env {i}"
-            );
-            assert_eq!(e.mode_levels[other], b.mode_levels[other], "env {i}");
-            started[i][slot(e.episode_mode)] += 1;
+            let expected = match b.episode_mode {
+                TaskMode::Biped => [b.mode_levels[0], b.mode_levels[1] - 1],
+                TaskMode::Quad => b.mode_levels,
+            };
+            assert_eq!(e.mode_levels, expected, "env {i}");
+            biped_started[i] += u32::from(e.episode_mode == TaskMode::Biped);
         }
     }
-    assert!(episodes >= 5 * n, "{episodes} episodes");
-    // The levels part: each mode went down once per episode it started.
-    let mut apart = 0;
-    for (i, s) in started.iter().enumerate() {
+    assert!(
+        episodes >= 5 * n && switches > 10 * n,
+        "{episodes} episodes, {switches} switches"
+    );
+    // The quad's level never moved; the biped's went down once per episode it started.
+    for (i, &started) in biped_started.iter().enumerate() {
         let e = env.env_state(i);
-        let current = slot(e.episode_mode);
-        for (m, count) in s.iter().enumerate() {
-            let ended = count - u32::from(m == current);
-            assert_eq!(
-                e.mode_levels[m],
-                3u32.saturating_sub(ended),
-                "env {i} mode {m}"
-            );
-        }
-        apart += usize::from(e.mode_levels[0] != e.mode_levels[1]);
+        let ended = started - u32::from(e.episode_mode == TaskMode::Biped);
+        assert_eq!(e.mode_levels, [8, 8 - ended], "env {i}");
     }
-    assert!(apart > 0, "no env's modes came apart");
+    assert!(
+        biped_started.iter().any(|&s| s > 1),
+        "no env's biped level moved"
+    );
 }

@@ -171,13 +171,17 @@ class ShardedSession(ClosesOnExit):
     def _shard_config(self, i: int) -> SessionConfig:
         seed = self._config.seed + i + self._generation[i] * len(self._clients)
         # Each shard starts its own envs' levels; a shard that replaces a lost one starts afresh.
-        levels = self._config.terrain_levels
-        if levels and self._generation[i] == 0:
-            levels = levels[self.offsets[i] : self.offsets[i] + self.counts[i]]
-        else:
-            levels = ()
+        levels, pairs = self._config.terrain_levels, self._config.terrain_mode_levels
+        first, count = self.offsets[i], self.counts[i]
+        fresh = self._generation[i] != 0
+        levels = () if fresh or not levels else levels[first : first + count]
+        pairs = () if fresh or not pairs else pairs[2 * first : 2 * (first + count)]
         return dataclasses.replace(
-            self._config, num_envs=self.counts[i], seed=seed, terrain_levels=levels
+            self._config,
+            num_envs=count,
+            seed=seed,
+            terrain_levels=levels,
+            terrain_mode_levels=pairs,
         )
 
     def _rows(self, array: np.ndarray, i: int) -> np.ndarray:
@@ -339,6 +343,7 @@ class ShardedSession(ClosesOnExit):
             nonfinite_resets=0,
             head_contact=np.zeros(n, dtype=bool),
             upright_pitch=initial.upright_pitch,
+            mode_levels=initial.mode_levels,
         )
 
     def close(self) -> None:

@@ -26,6 +26,9 @@ class SessionConfig:
         terrain_level: Level of a pinned type, or the highest starting level for the curriculum.
         terrain_levels: The curriculum only: each env's starting level (one per env), e.g. the
             levels a resumed run had reached; empty: drawn from ``0..=terrain_level``.
+        terrain_mode_levels: The curriculum only: each env's starting (quad, biped) levels, two
+            per env, e.g. a resumed run's ``StepResult.mode_levels`` (used when the task keeps a
+            level per mode); empty: both modes start on the env's level.
         autoreset: ``"same_step"`` (default) or ``"disabled"``.
         reward_terms: Return the per-term rewards with every step.
         robot_drawing: Send the robot's drawing with the spec (``Spec.robot_drawing_rrd``), for
@@ -38,6 +41,7 @@ class SessionConfig:
     terrain: str = "flat"
     terrain_level: int = 0
     terrain_levels: tuple[int, ...] = ()
+    terrain_mode_levels: tuple[int, ...] = ()
     autoreset: str = "same_step"
     reward_terms: bool = True
     robot_drawing: bool = False
@@ -55,7 +59,10 @@ class SessionConfig:
             seed=self.seed,
             task_overrides_toml=self.task_overrides_toml,
             terrain=pb.TerrainConfig(
-                kind=self.terrain, level=self.terrain_level, initial_levels=self.terrain_levels
+                kind=self.terrain,
+                level=self.terrain_level,
+                initial_levels=self.terrain_levels,
+                initial_mode_levels=self.terrain_mode_levels,
             ),
             autoreset=modes[self.autoreset],
             reward_terms=self.reward_terms,
@@ -115,6 +122,8 @@ class StepResult:
         upright_pitch: Pitch (rad) above which the upright indicator fires from the next step
             on: the task's ``rewards.upright_pitch`` or where its upright curriculum has got
             (the mean over shards, each of which runs its own); None from older servers.
+        mode_levels: int64 [N, 2] each env's own (quad, biped) levels: both ``terrain_level``
+            unless the task keeps a level per mode; None from older servers.
         body_poses: f32 [K, B, 7], each body's world pose (x, y, z, qx, qy, qz, qw) of the K
             envs the step named in ``draw_envs`` (in that order; bodies as
             ``Spec.body_names``); None when it named none.
@@ -139,6 +148,7 @@ class StepResult:
     head_contact: np.ndarray | None = None
     upright_pitch: float | None = None
     body_poses: np.ndarray | None = None
+    mode_levels: np.ndarray | None = None
 
     @property
     def num_envs(self) -> int:
@@ -170,6 +180,7 @@ class StepResult:
         terms = decode(msg.reward_terms, (len(spec.reward_terms),))
         mode = decode(msg.mode, (), "u1")
         level = decode(msg.terrain_level, (), "<u4")
+        mode_levels = decode(msg.mode_levels, (2,), "<u4")
         return cls(
             obs=obs,
             labels=decode(msg.labels, (spec.label_dim,)),
@@ -192,6 +203,7 @@ class StepResult:
             body_poses=decode(msg.body_poses, (len(spec.body_names), 7))
             if msg.HasField("body_poses")
             else None,
+            mode_levels=mode_levels.astype(np.int64) if msg.HasField("mode_levels") else None,
         )
 
     @classmethod
@@ -236,6 +248,9 @@ class StepResult:
             upright_pitch=None
             if any(p.upright_pitch is None for p in parts)
             else float(np.mean([p.upright_pitch for p in parts])),
+            mode_levels=None
+            if any(p.mode_levels is None for p in parts)
+            else np.concatenate([p.mode_levels for p in parts]),
         )
 
 

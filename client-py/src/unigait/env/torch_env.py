@@ -41,6 +41,7 @@ class TorchStep:
         upright_pitch: the upright indicator's threshold from the next step on (rad; None when
             the server does not report it).
         nonfinite_resets: envs the server reset after a physics blow-up in this step.
+        mode_levels: int64 [N, 2] each env's own (quad, biped) levels (None from older servers).
     """
 
     obs: torch.Tensor
@@ -60,6 +61,7 @@ class TorchStep:
     head_contact: torch.Tensor | None = None
     upright_pitch: float | None = None
     nonfinite_resets: int = 0
+    mode_levels: torch.Tensor | None = None
     #: f32 [K, B, 7] poses of the envs the step named in ``draw_envs`` (numpy: for drawing).
     body_poses: np.ndarray | None = None
 
@@ -99,6 +101,7 @@ class TorchStep:
             head_contact=None if r.head_contact is None else _t(r.head_contact, device),
             upright_pitch=r.upright_pitch,
             nonfinite_resets=r.nonfinite_resets,
+            mode_levels=None if r.mode_levels is None else _t(r.mode_levels, device, torch.int64),
             body_poses=r.body_poses,
         )
 

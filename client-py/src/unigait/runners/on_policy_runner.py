@@ -163,6 +163,9 @@ class OnPolicyRunner:
         #: Each env's terrain level at the end of the last rollout: saved so that a resumed
         #: curriculum run starts its envs where they were rather than on levels 0-3 again.
         self.terrain_levels: list[int] = []
+        #: Each env's (quad, biped) levels, two per env (empty from older servers): a resumed
+        #: run with a level per mode starts both where they were (decision record 0036).
+        self.terrain_mode_levels: list[int] = []
         self.resumed = False
         #: The resumed checkpoint, and the task overrides and PPO settings it was trained with.
         self.resumed_from = ""
@@ -262,6 +265,8 @@ class OnPolicyRunner:
                 terrain.add_episode_ends(step.terrain_level, nxt.terrain_level, nxt.dones)
             step = nxt
         self.terrain_levels = [int(x) for x in step.terrain_level.tolist()]
+        if step.mode_levels is not None:
+            self.terrain_mode_levels = [int(x) for x in step.mode_levels.flatten().tolist()]
         if self.drawer is not None:
             self.drawer.flush()
         with timers.time("inference"), torch.no_grad():
@@ -379,6 +384,7 @@ class OnPolicyRunner:
             "stages": list(self.stages),
             "upright_pitch": self.upright_pitch,
             "terrain_levels": self.terrain_levels,
+            "terrain_mode_levels": self.terrain_mode_levels,
             "config": self.cfg.to_dict(),
             "dims": self.dims,
             "provenance": dict(self.provenance),

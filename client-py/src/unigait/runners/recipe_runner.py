@@ -23,6 +23,7 @@ from unigait.client import Client, ConnectionOptions, open_session
 from unigait.config import (
     TrainConfig,
     resume_upright_curriculum,
+    resumed_mode_levels,
     resumed_terrain_levels,
     session_config,
 )
@@ -204,14 +205,16 @@ def run_stage(
     if tensorboard:
         cfg = dataclasses.replace(cfg, runner=dataclasses.replace(cfg.runner, tensorboard=True))
     terrain_levels: list[int] = []
+    mode_levels: list[int] = []
     if source is not None:
         checkpoint = torch.load(source, map_location="cpu", weights_only=False)
         cfg = resume_upright_curriculum(cfg, checkpoint)
         terrain_levels = resumed_terrain_levels(cfg, checkpoint)
+        mode_levels = resumed_mode_levels(cfg, checkpoint)
     torch.manual_seed(cfg.runner.seed)
     if cfg.runner.torch_threads > 0:
         torch.set_num_threads(cfg.runner.torch_threads)
-    session_cfg = session_config(cfg, terrain_levels)
+    session_cfg = session_config(cfg, terrain_levels, mode_levels)
     if view is not None and view.target.envs > 0:  # the robot's drawing, to draw envs with
         session_cfg = dataclasses.replace(session_cfg, robot_drawing=True)
     session = open_session(list(addresses), session_cfg, **connection)

@@ -19,6 +19,7 @@ from unigait.client import SessionConfig, SessionLike
 from unigait.config import (
     TrainConfig,
     resume_upright_curriculum,
+    resumed_mode_levels,
     resumed_terrain_levels,
     session_config,
 )
@@ -64,6 +65,7 @@ def train(
     """
     source = resume or init_from
     terrain_levels: list[int] = []
+    mode_levels: list[int] = []
     if source:
         # A stage started from an upright policy (terrain after flat, say) keeps its threshold
         # too, rather than paying I_up from 1.0 rad again while the curriculum climbs back;
@@ -71,13 +73,14 @@ def train(
         checkpoint = torch.load(source, map_location="cpu", weights_only=False)
         cfg = resume_upright_curriculum(cfg, checkpoint)
         terrain_levels = resumed_terrain_levels(cfg, checkpoint)
+        mode_levels = resumed_mode_levels(cfg, checkpoint)
     torch.manual_seed(cfg.runner.seed)
     if cfg.runner.torch_threads > 0:
         torch.set_num_threads(cfg.runner.torch_threads)
     log_dir = Path(cfg.runner.log_dir)
     log_dir.mkdir(parents=True, exist_ok=True)
     (log_dir / "config.toml").write_text(cfg.to_toml())
-    session_cfg = session_config(cfg, terrain_levels)
+    session_cfg = session_config(cfg, terrain_levels, mode_levels)
     if view is not None and view.envs > 0:  # the robot's drawing, to draw envs with
         session_cfg = dataclasses.replace(session_cfg, robot_drawing=True)
     env = TorchVecEnv(open_session(session_cfg), cfg.runner.device)

@@ -204,7 +204,9 @@ impl EnvGroup {
                         sh.terrain
                             .initial_tile(env.id.index(), sh.num_envs, &mut env.rng);
                     env.terrain_level = level;
-                    env.mode_levels = [level; 2];
+                    env.mode_levels = grid
+                        .initial_mode_levels(env.id.index())
+                        .unwrap_or([level; 2]);
                     env.terrain_type = column;
                 } else if previous.is_sound() {
                     // The curriculum judges the episode that just ended by what the robot
@@ -329,6 +331,11 @@ impl EnvGroup {
             .copy_from_slice(&env.randomization.privileged(&sh.ctx.config.randomization));
         out.mode[slot] = env.mode as u8;
         out.terrain_level[slot] = env.terrain_level;
+        out.mode_levels[2 * slot..2 * slot + 2].copy_from_slice(&if per_mode_levels(sh) {
+            env.mode_levels
+        } else {
+            [env.terrain_level; 2]
+        });
     }
 
     /// One policy step of every env: actions [len, 12] (already validated finite).
@@ -467,6 +474,11 @@ impl EnvGroup {
         }
         self.write_env(sh, slot, out);
     }
+}
+
+/// Whether this batch's curriculum keeps a level per mode (decision record 0036).
+fn per_mode_levels(sh: &Shared) -> bool {
+    sh.ctx.config.terrain_curriculum.per_mode_levels && sh.terrain.grid().is_some()
 }
 
 /// The entry of [`EnvState::mode_levels`] that holds `mode`'s level.

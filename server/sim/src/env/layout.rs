@@ -153,6 +153,14 @@ pub fn tensor_layouts() -> Vec<TensorLayout> {
             "terrain difficulty level",
         ),
         TensorLayout {
+            name: "mode_levels",
+            row_shape: vec![2],
+            element: ElementType::U32,
+            slices: vec![],
+            doc: "each env's own level per mode (quad, biped); both terrain_level unless the \
+                  curriculum keeps a level per mode",
+        },
+        TensorLayout {
             name: "actions",
             row_shape: vec![NUM_JOINTS],
             element: ElementType::F32,

@@ -32,6 +32,9 @@ pub struct StepOutput {
     pub mode: Vec<u8>,
     /// Terrain difficulty level of each env: [N].
     pub terrain_level: Vec<u32>,
+    /// Each env's own level per mode, (quad, biped): [N, 2]. Both are `terrain_level` unless
+    /// the curriculum keeps a level per mode (decision record 0036).
+    pub mode_levels: Vec<u32>,
     /// 1 where the env's physics turned non-finite this step and it was reset: [N].
     pub nonfinite: Vec<u8>,
     /// 1 where the robot's head touched the terrain during the step (neither terminating nor
@@ -61,6 +64,7 @@ impl StepOutput {
             episode_length: vec![0; n],
             mode: vec![0; n],
             terrain_level: vec![0; n],
+            mode_levels: vec![0; 2 * n],
             nonfinite: vec![0; n],
             head_contact: vec![0; n],
             torques: vec![0.0; n * NUM_JOINTS],
@@ -102,6 +106,7 @@ impl StepOutput {
         let mut episode_length = self.episode_length.chunks_mut(envs);
         let mut mode = self.mode.chunks_mut(envs);
         let mut terrain_level = self.terrain_level.chunks_mut(envs);
+        let mut mode_levels = self.mode_levels.chunks_mut(2 * envs);
         let mut nonfinite = self.nonfinite.chunks_mut(envs);
         let mut head_contact = self.head_contact.chunks_mut(envs);
         let mut torques = self.torques.chunks_mut(envs * NUM_JOINTS);
@@ -122,6 +127,7 @@ impl StepOutput {
                 episode_length: episode_length.next().unwrap_or_default(),
                 mode: mode.next().unwrap_or_default(),
                 terrain_level: terrain_level.next().unwrap_or_default(),
+                mode_levels: mode_levels.next().unwrap_or_default(),
                 nonfinite: nonfinite.next().unwrap_or_default(),
                 head_contact: head_contact.next().unwrap_or_default(),
                 torques: torques.next().unwrap_or_default(),
@@ -147,6 +153,7 @@ pub struct OutputChunk<'a> {
     pub episode_length: &'a mut [u32],
     pub mode: &'a mut [u8],
     pub terrain_level: &'a mut [u32],
+    pub mode_levels: &'a mut [u32],
     pub nonfinite: &'a mut [u8],
     pub head_contact: &'a mut [u8],
     pub torques: &'a mut [f32],

@@ -4,9 +4,9 @@ use rapier3d::math::{Rotation, Vec3};
 
 use crate::robot::{NUM_FEET, NUM_JOINTS};
 
-/// Trunk speed (m/s) beyond any this task reaches: pushes set 1 m/s, and random actions on the
-/// whole terrain grid reach 2. A faster state is a solver blow-up that has not overflowed yet
-/// (decision 0035).
+/// Trunk speed (m/s) beyond any this task reaches: pushes add at most 1 m/s per horizontal axis
+/// (the config allows 5, and spawns 5 per axis), and random actions on the whole terrain grid
+/// reach 2. A faster state is a solver blow-up that has not overflowed yet (decision 0035).
 pub const MAX_SOUND_BASE_SPEED: f32 = 20.0;
 /// Trunk spin (rad/s) beyond any this task reaches (random actions: 9).
 pub const MAX_SOUND_BASE_SPIN: f32 = 50.0;

@@ -118,7 +118,8 @@ impl TaskConfig {
         check_range("init.hip", i.hip, -3.2, 3.2)?;
         check_range("init.thigh", i.thigh, -3.2, 3.2)?;
         check_range("init.calf", i.calf, -3.2, 3.2)?;
-        check_range("init.linvel", i.linvel, -10.0, 10.0)?;
+        // Well under the trunk speed the env resets as a blow-up (20 m/s, decision 0035).
+        check_range("init.linvel", i.linvel, -5.0, 5.0)?;
         check_range("init.angvel", i.angvel, -10.0, 10.0)?;
         check_range("init.pitch", i.pitch, -1.6, 1.6)?;
         check_range("init.yaw", i.yaw, -3.2, 3.2)?;
@@ -144,7 +145,7 @@ impl TaskConfig {
             0.0,
             3600.0,
         )?;
-        check("randomization.push_velocity", r.push_velocity, 0.0, 10.0)?;
+        check("randomization.push_velocity", r.push_velocity, 0.0, 5.0)?;
         let w = &self.rewards;
         for term in RewardTerm::ALL {
             check(

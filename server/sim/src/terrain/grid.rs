@@ -31,6 +31,8 @@ pub struct TerrainGrid {
     /// A curriculum's starting level of each env by index (a resumed run's levels); empty: the
     /// level is drawn from `0..=max_init_level`.
     initial_levels: Vec<u32>,
+    /// Each env's starting (quad, biped) levels, when a resumed run keeps a level per mode.
+    initial_mode_levels: Vec<[u32; 2]>,
 }
 
 impl std::fmt::Debug for TerrainGrid {
@@ -70,6 +72,7 @@ impl TerrainGrid {
             shape,
             pose,
             initial_levels: Vec::new(),
+            initial_mode_levels: Vec::new(),
         };
         grid.origin_heights = (0..spec.num_levels)
             .flat_map(|level| (0..spec.types.len() as u32).map(move |column| (level, column)))
@@ -151,9 +154,29 @@ impl TerrainGrid {
     /// carries its envs' levels over instead of climbing back from `0..=max_init_level`.
     /// Refused for a kind other than a curriculum and for a level off the grid.
     pub fn set_initial_levels(&mut self, levels: Vec<u32>) -> Result<(), SimError> {
+        self.check_initial("terrain.initial_levels", &levels)?;
+        self.initial_levels = levels;
+        Ok(())
+    }
+
+    /// Start env i's modes at `levels[i]` (quad, biped) when the task keeps a level per mode
+    /// (decision record 0036): a resumed run carries both over. Checked as
+    /// [`TerrainGrid::set_initial_levels`].
+    pub fn set_initial_mode_levels(&mut self, levels: Vec<[u32; 2]>) -> Result<(), SimError> {
+        self.check_initial("terrain.initial_mode_levels", levels.as_flattened())?;
+        self.initial_mode_levels = levels;
+        Ok(())
+    }
+
+    /// Env `env_index`'s starting (quad, biped) levels, if the session gave them.
+    pub fn initial_mode_levels(&self, env_index: usize) -> Option<[u32; 2]> {
+        self.initial_mode_levels.get(env_index).copied()
+    }
+
+    fn check_initial(&self, field: &str, levels: &[u32]) -> Result<(), SimError> {
         if !matches!(self.spec.kind, TerrainKind::Curriculum { .. }) {
             return Err(SimError::invalid(
-                "terrain.initial_levels",
+                field,
                 format!("{} levels", levels.len()),
                 "only for the curriculum",
             ));
@@ -164,12 +187,11 @@ impl TerrainGrid {
             .find(|(_, l)| **l >= self.num_levels())
         {
             return Err(SimError::invalid(
-                format!("terrain.initial_levels[{i}]"),
+                format!("{field}[{i}]"),
                 level,
                 format!("0..{}", self.num_levels()),
             ));
         }
-        self.initial_levels = levels;
         Ok(())
     }
 

@@ -54,20 +54,41 @@ impl Terrain {
 
     /// This terrain with env i of its curriculum starting at `levels[i]` (see
     /// [`TerrainGrid::set_initial_levels`]); refused on flat ground and on a grid already shared.
-    pub fn with_initial_levels(mut self, levels: Vec<u32>) -> Result<Terrain, SimError> {
+    pub fn with_initial_levels(self, levels: Vec<u32>) -> Result<Terrain, SimError> {
+        let count = levels.len();
+        self.with_grid("terrain.initial_levels", count, |grid| {
+            grid.set_initial_levels(levels)
+        })
+    }
+
+    /// This terrain with env i's modes starting at `levels[i]` (quad, biped; see
+    /// [`TerrainGrid::set_initial_mode_levels`]); refused as [`Terrain::with_initial_levels`].
+    pub fn with_initial_mode_levels(self, levels: Vec<[u32; 2]>) -> Result<Terrain, SimError> {
+        let count = levels.len();
+        self.with_grid("terrain.initial_mode_levels", count, |grid| {
+            grid.set_initial_mode_levels(levels)
+        })
+    }
+
+    fn with_grid(
+        mut self,
+        field: &str,
+        count: usize,
+        set: impl FnOnce(&mut TerrainGrid) -> Result<(), SimError>,
+    ) -> Result<Terrain, SimError> {
         match &mut self {
             Terrain::Flat => Err(SimError::invalid(
-                "terrain.initial_levels",
-                format!("{} levels", levels.len()),
+                field,
+                format!("{count} levels"),
                 "only for the curriculum",
             )),
             Terrain::Grid(g) => match Arc::get_mut(g) {
                 Some(grid) => {
-                    grid.set_initial_levels(levels)?;
+                    set(grid)?;
                     Ok(self)
                 }
                 None => Err(SimError::invalid(
-                    "terrain.initial_levels",
+                    field,
                     "a shared grid",
                     "a grid of its own",
                 )),
