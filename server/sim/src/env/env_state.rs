@@ -33,7 +33,7 @@ pub struct EnvState {
     /// Terrain difficulty level (row of the terrain grid) of the tile this episode is on.
     pub terrain_level: u32,
     /// Each mode's own level (quad, biped) when the curriculum keeps one per mode
-    /// (`terrain_curriculum.per_mode_levels`, decision record 0036).
+    /// (`terrain_curriculum.per_mode_levels`, decision record 0036); unused otherwise.
     pub mode_levels: [u32; 2],
     /// The mode this episode started in.
     pub episode_mode: TaskMode,

@@ -276,7 +276,9 @@ impl EnvGroup {
     /// Switch env `slot` to `mode` now, as the episode's own mode draw would (see
     /// [`EnvState::enter_mode`]), and rewrite what of its row of `out` the mode decides: the
     /// task slices of o_t and the mode entry. Nothing else of the row changes (the rest of o_t
-    /// measures the body, and the last reward was earned under the old mode).
+    /// measures the body, and the last reward was earned under the old mode). The episode's
+    /// first mode (`EnvState::episode_mode`, whose level a curriculum with a level per mode
+    /// judges) stays the drawn one.
     pub fn set_mode(
         &mut self,
         sh: &Shared,
