@@ -6,6 +6,7 @@ import os
 import re
 import shutil
 import subprocess
+import sys
 import threading
 import time
 from collections import deque
@@ -13,6 +14,8 @@ from pathlib import Path
 from types import TracebackType
 
 _LISTENING = re.compile(r"listening on (\S+:\d+)")
+#: A tracing line at WARN or ERROR level (the server logs without colour to a pipe).
+_ALERT = re.compile(r"^\S+\s+(WARN|ERROR)\s")
 
 
 def default_server_bin() -> Path:
@@ -85,6 +88,8 @@ class LocalServer:
             assert self._proc is not None and self._proc.stdout is not None
             for line in self._proc.stdout:
                 self.output.append(line.rstrip("\n"))
+                if _ALERT.search(line):  # a warning reaches the run's log, not just the tail
+                    print(f"unigait-server: {line.rstrip()}", file=sys.stderr, flush=True)
                 m = _LISTENING.search(line)
                 if m and not found.is_set():
                     self.address = m.group(1)

@@ -374,6 +374,7 @@ impl EnvGroup {
                 if !self.states[slot].is_sound() {
                     out.nonfinite[slot] = 1;
                     self.nonfinite_resets += 1;
+                    report_blowup(&self.envs[slot], &self.states[slot]);
                     self.reset_env(sh, slot, false);
                 }
             }
@@ -430,6 +431,7 @@ impl EnvGroup {
         } else {
             // A physics blow-up: the transition carries no reward and ends without bootstrap.
             self.nonfinite_resets += 1;
+            report_blowup(&self.envs[slot], &self.states[slot]);
             terminated = true;
             truncated = false;
             terms.fill(0.0);
@@ -476,6 +478,25 @@ impl EnvGroup {
         }
         self.write_env(sh, slot, out);
     }
+}
+
+/// Say where and how an env blew up before it is reset (decision record 0035): their cause is
+/// not yet known, and the state is gone after the reset.
+fn report_blowup(env: &EnvState, s: &RobotState) {
+    let joint = s.qd.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+    tracing::warn!(
+        env = env.id.index(),
+        step = env.episode_step,
+        mode = ?env.mode,
+        terrain_level = env.terrain_level,
+        terrain_type = env.terrain_type,
+        base_pos = ?s.base_pos,
+        base_linvel = ?s.base_linvel,
+        base_angvel = ?s.base_angvel,
+        max_joint_speed = joint,
+        faulted = s.faulted,
+        "physics blow-up: env reset"
+    );
 }
 
 /// Whether this batch's curriculum keeps a level per mode (decision record 0036).
