@@ -929,6 +929,18 @@ fn with_mode_levels(
     request
 }
 
+/// `request` is refused as INVALID_ARGUMENT, naming `field`.
+async fn assert_refused(
+    c: &mut SimulatorClient<Channel>,
+    request: v1::CreateSessionRequest,
+    field: &str,
+    what: &str,
+) {
+    let status = c.create_session(request).await.expect_err("refused");
+    assert_eq!(status.code(), Code::InvalidArgument, "{what}: {status}");
+    assert!(status.message().contains(field), "{status}");
+}
+
 fn u32s(t: Option<v1::Tensor>, name: &str) -> Vec<u32> {
     t.expect(name).u32_values(name).expect("u32").into_owned()
 }
@@ -988,16 +1000,9 @@ async fn a_curriculum_session_starts_each_mode_on_the_level_it_asks_for() {
         ("curriculum", [vec![0; 15], vec![10]].concat()),
         ("stairs_up", vec![0; 16]),
     ] {
-        let status = c
-            .create_session(with_mode_levels(8, kind, Vec::new(), bad.clone(), per_mode))
-            .await
-            .expect_err("refused");
-        assert_eq!(
-            status.code(),
-            Code::InvalidArgument,
-            "{kind} {bad:?}: {status}"
-        );
-        assert!(status.message().contains("initial_mode_levels"), "{status}");
+        let request = with_mode_levels(8, kind, Vec::new(), bad.clone(), per_mode);
+        let what = format!("{kind} {bad:?}");
+        assert_refused(&mut c, request, "initial_mode_levels", &what).await;
     }
     assert_eq!(active_sessions(&mut c).await.0, 2);
     server.shutdown().await;
@@ -1029,16 +1034,14 @@ async fn a_curriculum_session_starts_its_envs_on_the_levels_it_asks_for() {
         ("stairs_up", vec![0; 8]),
         ("flat", vec![0; 8]),
     ] {
-        let status = c
-            .create_session(with_levels(8, kind, bad.clone()))
-            .await
-            .expect_err("refused");
-        assert_eq!(
-            status.code(),
-            Code::InvalidArgument,
-            "{kind} {bad:?}: {status}"
-        );
-        assert!(status.message().contains("initial_levels"), "{status}");
+        let what = format!("{kind} {bad:?}");
+        assert_refused(
+            &mut c,
+            with_levels(8, kind, bad.clone()),
+            "initial_levels",
+            &what,
+        )
+        .await;
     }
     assert_eq!(active_sessions(&mut c).await.0, 1);
     server.shutdown().await;

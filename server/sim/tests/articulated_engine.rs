@@ -306,46 +306,10 @@ fn bit_identical_across_thread_counts() {
 /// counted; the others are untouched.
 #[test]
 fn blown_up_env_is_quarantined_and_reset() {
-    let run = |speed: Option<f32>| {
-        let cfg = TaskConfig::embedded_default()
-            .with_overrides(ENGINE)
-            .expect("config");
-        let mut env = batch(cfg, 8, 2, 1);
-        let mut state = 5;
-        for _ in 0..10 {
-            env.step(&random_actions(8, &mut state)).expect("step");
-        }
-        if let Some(speed) = speed {
-            env.poison_env(3, speed);
-        }
-        let out = env
-            .step(&random_actions(8, &mut state))
-            .expect("step")
-            .clone();
-        let reset = *env.robot_state(3);
-        (out, env.nonfinite_resets(), reset)
-    };
-    let (clean, clean_count, _) = run(None);
-    assert_eq!(clean_count, 0);
-    for speed in [f32::NAN, 500.0] {
-        let (hit, hit_count, reset) = run(Some(speed));
-        assert_eq!(hit_count, 1, "{speed}");
-        assert!(reset.is_sound(), "{speed}: the env was not reset");
-        // A reset draws the trunk velocity within 0.5 m/s per axis.
-        assert!(
-            reset.base_linvel.length() < 1.0,
-            "{speed}: {:?}",
-            reset.base_linvel
-        );
-        assert_eq!(hit.nonfinite[3], 1);
-        assert_eq!(hit.terminated[3], 1);
-        assert_eq!(hit.reward[3], 0.0);
-        assert!(hit.obs.iter().chain(&hit.final_obs).all(|v| v.is_finite()));
-        for i in (0..8).filter(|&i| i != 3) {
-            let row = |o: &StepOutput| o.obs[i * OBS_DIM..(i + 1) * OBS_DIM].to_vec();
-            assert_eq!(row(&clean), row(&hit), "{speed}: env {i} was disturbed");
-        }
-    }
+    let cfg = TaskConfig::embedded_default()
+        .with_overrides(ENGINE)
+        .expect("config");
+    assert_eq!(blown_up_runs(cfg).len(), 2);
 }
 
 /// Every terrain type, on the triangle mesh and on the heightfield, at a hard level: robots

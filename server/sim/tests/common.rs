@@ -79,3 +79,51 @@ pub fn stand(
     }
     late
 }
+
+/// Decision record 0035, on `config`'s engine: 8 envs run 10 random steps, then env 3's trunk
+/// is set to a NaN and to a finite 500 m/s speed, one run each. The step after resets it
+/// (terminated, reward 0, flagged, counted once, its new state sound and calm), with finite
+/// observations, and leaves the other envs as in a clean run. Returns (speed, step) per run.
+pub fn blown_up_runs(config: TaskConfig) -> Vec<(f32, StepOutput)> {
+    let run = |speed: Option<f32>| {
+        let mut env = batch(config.clone(), 8, 2, 1);
+        let mut state = 5;
+        for _ in 0..10 {
+            env.step(&random_actions(8, &mut state)).expect("step");
+        }
+        if let Some(speed) = speed {
+            env.poison_env(3, speed);
+        }
+        let out = env
+            .step(&random_actions(8, &mut state))
+            .expect("step")
+            .clone();
+        let reset = *env.robot_state(3);
+        (out, env.nonfinite_resets(), reset)
+    };
+    let (clean, clean_count, _) = run(None);
+    assert_eq!(clean_count, 0);
+    [f32::NAN, 500.0]
+        .into_iter()
+        .map(|speed| {
+            let (hit, hit_count, reset) = run(Some(speed));
+            assert_eq!(hit_count, 1, "{speed}");
+            assert!(reset.is_sound(), "{speed}: the env was not reset");
+            // A reset draws the trunk velocity within 0.5 m/s per axis.
+            assert!(
+                reset.base_linvel.length() < 1.0,
+                "{speed}: {:?}",
+                reset.base_linvel
+            );
+            assert_eq!(hit.nonfinite[3], 1);
+            assert_eq!(hit.terminated[3], 1);
+            assert_eq!(hit.reward[3], 0.0);
+            assert!(hit.obs.iter().chain(&hit.final_obs).all(|v| v.is_finite()));
+            for i in (0..8).filter(|&i| i != 3) {
+                let row = |o: &StepOutput| o.obs[i * OBS_DIM..(i + 1) * OBS_DIM].to_vec();
+                assert_eq!(row(&clean), row(&hit), "{speed}: env {i} was disturbed");
+            }
+            (speed, hit)
+        })
+        .collect()
+}
