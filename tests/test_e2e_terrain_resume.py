@@ -100,6 +100,31 @@ def test_a_resumed_run_with_a_level_per_mode_starts_each_mode_where_it_was(
     assert len(resumed["terrain_mode_levels"]) == 40
 
 
+def test_a_run_on_a_grid_of_its_own_logs_its_columns(server: str, tmp_path: Path):
+    """``env.terrain_columns`` builds the grid the run asks for, and the log counts its types."""
+    columns = "env.terrain_columns=['stairs_down', 'slope_up', 'slope_up']"
+    cfg = load_config(
+        None, [*TINY, columns, "runner.max_iterations=1", f"runner.log_dir='{tmp_path}'"]
+    )
+    specs = []
+
+    def recording(config: SessionConfig):
+        session = open_session(server, config)
+        specs.append(session.spec)
+        return session
+
+    train(cfg, recording)
+    assert specs[0].terrain_columns == ("stairs_down", "slope_up", "slope_up")
+    header = (tmp_path / "progress.csv").read_text().splitlines()[0].split(",")
+    levels = {h for h in header if h.startswith("terrain_level/") and h.count("/") == 1}
+    assert levels == {
+        "terrain_level/stairs_down",
+        "terrain_level/slope_up",
+        "terrain_level/quad",
+        "terrain_level/biped",
+    }
+
+
 RECIPE = """
 description = "two tiny curriculum stages on the real server"
 

@@ -3,47 +3,47 @@
 from __future__ import annotations
 
 import math
-import re
-from pathlib import Path
 
 import torch
 
 from unigait.env.terrain_stats import (
-    DEFAULT_COLUMNS,
     TerrainLevelStats,
     env_terrain_types,
     initial_column,
 )
 
-SPEC_RS = Path(__file__).resolve().parents[2] / "server/sim/src/terrain/spec.rs"
-
-
-def test_default_columns_mirror_the_server() -> None:
-    text = SPEC_RS.read_text()
-    block = text[text.index("pub const DEFAULT_COLUMNS") :]
-    block = block[: block.index("];")]
-    pairs = re.findall(r"\(TerrainType::(\w+), (\d+)\)", block)
-    snake = [(re.sub(r"(?<!^)([A-Z])", r"_\1", t).lower(), int(n)) for t, n in pairs]
-    assert tuple(snake) == DEFAULT_COLUMNS
-    assert sum(n for _, n in DEFAULT_COLUMNS) == 20
+#: The server's default grid (a curriculum spec's ``terrain_columns``): legged_gym's
+#: proportions over 20 columns.
+DEFAULT_GRID = (
+    ["slope_up", "slope_down"]
+    + ["rough_slope"] * 2
+    + ["stairs_up"] * 7
+    + ["stairs_down"] * 5
+    + ["obstacles"] * 4
+)
 
 
 def test_columns_in_blocks_as_the_server() -> None:
     assert [initial_column(i, 14, 7) for i in range(14)] == [i // 2 for i in range(14)]
     assert [initial_column(i, 3, 7) for i in range(3)] == [0, 2, 4]
     # 40 envs on 20 columns: two per column; stairs up are columns 4-10 -> envs 8-21.
-    types = env_terrain_types("curriculum", [40])
+    types = env_terrain_types("curriculum", DEFAULT_GRID, [40])
     assert types[:2] == ["slope_up", "slope_up"]
     assert types[2:4] == ["slope_down", "slope_down"]
     assert types[8:22] == ["stairs_up"] * 14
     assert types[22:32] == ["stairs_down"] * 10
     assert types[32:] == ["obstacles"] * 8
     # Sharded (20 + 20): each shard lays out its own 20 columns, one env each.
-    sharded = env_terrain_types("curriculum", [20, 20])
+    sharded = env_terrain_types("curriculum", DEFAULT_GRID, [20, 20])
     assert sharded[:20] == sharded[20:]
     assert sharded[4:11] == ["stairs_up"] * 7
-    assert env_terrain_types("stairs_down level 6", [3]) == ["stairs_down"] * 3
-    assert env_terrain_types("flat", [2]) == ["flat", "flat"]
+    # A grid of its own: 6 envs on 3 columns.
+    own = env_terrain_types("curriculum", ["slope_up", "slope_up", "stairs_down"], [6])
+    assert own == ["slope_up"] * 4 + ["stairs_down"] * 2
+    # An older server names no columns: one type for the whole grid.
+    assert env_terrain_types("curriculum", [], [2]) == ["curriculum"] * 2
+    assert env_terrain_types("stairs_down level 6", [], [3]) == ["stairs_down"] * 3
+    assert env_terrain_types("flat", [], [2]) == ["flat", "flat"]
 
 
 def test_means_per_type_and_mode_by_hand() -> None:

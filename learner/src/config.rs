@@ -27,6 +27,8 @@ pub struct EnvConfig {
     pub terrain: String,
     /// Level of a pinned type, or the curriculum's highest starting level.
     pub terrain_level: u32,
+    /// The curriculum grid's column types, in order (empty: the server's default 20).
+    pub terrain_columns: Vec<String>,
 }
 
 impl Default for EnvConfig {
@@ -39,6 +41,7 @@ impl Default for EnvConfig {
             task: toml::Table::new(),
             terrain: "flat".into(),
             terrain_level: 0,
+            terrain_columns: Vec::new(),
         }
     }
 }
@@ -433,6 +436,7 @@ mod tests {
             "env.task.physics.engine = \"rapier\"",
             "env.task.rewards.weights.quad_foot_clearance=3",
             "env.terrain=curriculum",
+            "env.terrain_columns = [\"slope_up\", \"stairs_up\"]",
         ] {
             t = merged(t, &set_line(line).unwrap());
         }
@@ -444,6 +448,10 @@ mod tests {
             Some(3)
         );
         assert_eq!(cfg.env.terrain, "curriculum");
+        assert_eq!(cfg.env.terrain_columns, ["slope_up", "stairs_up"]);
+        let session = crate::learner::session_config(&cfg, &Default::default());
+        let terrain = session.terrain.expect("terrain");
+        assert_eq!(terrain.columns, ["slope_up", "stairs_up"]);
         for bad in ["entropy_coef=0.1", "ppo.=1", "ppo.entropy_coef"] {
             let err = set_line(bad).unwrap_err().to_string();
             assert!(err.contains("section.key=value"), "{err}");

@@ -49,6 +49,7 @@ pub fn session_config(cfg: &TrainConfig, start: &StartLevels) -> v1::SessionConf
             level: cfg.env.terrain_level,
             initial_levels: start.levels.clone(),
             initial_mode_levels: start.mode_levels.clone(),
+            columns: cfg.env.terrain_columns.clone(),
         }),
         autoreset: v1::AutoresetMode::SameStep as i32,
         reward_terms: true,

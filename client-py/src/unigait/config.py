@@ -35,6 +35,8 @@ class EnvConfig:
             {"biped_body_contact": -3.0}}}``); the client sends it as TOML.
         terrain: ``"flat"``, ``"curriculum"`` or a pinned type.
         terrain_level: Level of a pinned type or the curriculum's highest starting level.
+        terrain_columns: The curriculum grid's column types, in order (repeat a type to give it
+            more columns); empty: the server's default 20, legged_gym's proportions.
     """
 
     servers: tuple[str, ...] = ()
@@ -44,6 +46,7 @@ class EnvConfig:
     task: dict[str, Any] = field(default_factory=dict)
     terrain: str = "flat"
     terrain_level: int = 0
+    terrain_columns: tuple[str, ...] = ()
 
     def task_toml(self) -> str:
         """The task overrides as the TOML fragment the server's session config takes."""
@@ -346,6 +349,7 @@ def session_config(
         terrain_level=cfg.env.terrain_level,
         terrain_levels=tuple(terrain_levels),
         terrain_mode_levels=tuple(mode_levels),
+        terrain_columns=cfg.env.terrain_columns,
         reward_terms=True,
     )
 

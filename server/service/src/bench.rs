@@ -253,6 +253,7 @@ pub fn run(args: &BenchArgs) -> Result<BenchReport> {
         level: args.level,
         initial_levels: Vec::new(),
         initial_mode_levels: Vec::new(),
+        columns: Vec::new(),
     };
     let (terrain, _) = unigait_server::terrain_for(Some(&selection), args.seed, args.envs)?;
     let options = VecEnvOptions {

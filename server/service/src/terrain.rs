@@ -34,6 +34,12 @@ pub fn terrain_for(
             mode_levels.len()
         )));
     }
+    let columns = config.map_or(&[][..], |c| c.columns.as_slice());
+    let column_types = if columns.is_empty() {
+        None
+    } else {
+        Some(column_types(kind, columns)?)
+    };
     let spec_kind = match kind {
         "" | "flat" => return Ok((Arc::new(Terrain::Flat), "flat".into())),
         "curriculum" => TerrainKind::Curriculum {
@@ -57,10 +63,13 @@ pub fn terrain_for(
             }
         },
     };
-    let spec = TerrainSpec {
+    let mut spec = TerrainSpec {
         kind: spec_kind,
         ..TerrainSpec::default()
     };
+    if let Some(types) = column_types {
+        spec.types = types;
+    }
     let mut terrain = Terrain::from_spec(&spec, seed)?;
     if !initial_levels.is_empty() {
         terrain = terrain.with_initial_levels(initial_levels.to_vec())?;
@@ -75,4 +84,47 @@ pub fn terrain_for(
         format!("{kind} level {level}")
     };
     Ok((Arc::new(terrain), name))
+}
+
+/// Most grid columns a session may ask for (the grid's own limit, `TerrainSpec::validate`).
+pub const MAX_COLUMNS: usize = 100;
+
+/// The column types a curriculum session named (`TerrainConfig.columns`).
+fn column_types(kind: &str, columns: &[String]) -> Result<Vec<TerrainType>, ServiceError> {
+    if kind != "curriculum" {
+        return Err(ServiceError::InvalidArgument(format!(
+            "terrain.columns: {} columns for a `{kind}` terrain; they are for \"curriculum\"",
+            columns.len()
+        )));
+    }
+    if columns.len() > MAX_COLUMNS {
+        return Err(ServiceError::InvalidArgument(format!(
+            "terrain.columns: {} columns, at most {MAX_COLUMNS}",
+            columns.len()
+        )));
+    }
+    columns
+        .iter()
+        .enumerate()
+        .map(|(i, name)| {
+            TerrainType::from_name(name).ok_or_else(|| {
+                let known: Vec<&str> = TerrainType::ALL.iter().map(|t| t.name()).collect();
+                ServiceError::InvalidArgument(format!(
+                    "terrain.columns[{i}]: unknown terrain type `{name}`; known: {}",
+                    known.join(", ")
+                ))
+            })
+        })
+        .collect()
+}
+
+/// The column types of `terrain`'s grid, by name (empty without a grid).
+pub fn column_names(terrain: &Terrain) -> Vec<String> {
+    terrain.grid().map_or_else(Vec::new, |grid| {
+        grid.spec()
+            .types
+            .iter()
+            .map(|t| t.name().to_string())
+            .collect()
+    })
 }

@@ -164,6 +164,9 @@ async fn issue_14_fuzz_every_rpc_bounded() {
                         initial_mode_levels: (0..rng.random_range(0..5))
                             .map(|_| extreme_u32(&mut rng))
                             .collect(),
+                        columns: (0..rng.random_range(0..3))
+                            .map(|_| string(&mut rng, &["stairs_up".into(), "slope_down".into()]))
+                            .collect(),
                     }),
                     autoreset: rng.random_range(-1..4),
                     reward_terms: rng.random(),

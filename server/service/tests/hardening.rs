@@ -924,9 +924,95 @@ fn with_mode_levels(
             level: 1,
             initial_levels: levels,
             initial_mode_levels: mode_levels,
+            columns: Vec::new(),
         });
     }
     request
+}
+
+/// A curriculum session of `n` envs on the top level with `columns` as its grid.
+fn with_columns(n: u32, kind: &str, columns: &[&str]) -> v1::CreateSessionRequest {
+    let mut request = with_levels(n, kind, Vec::new());
+    if let Some(t) = request.config.as_mut().and_then(|c| c.terrain.as_mut()) {
+        if kind == "curriculum" {
+            t.initial_levels = vec![9; n as usize];
+        }
+        t.columns = columns.iter().map(|c| c.to_string()).collect();
+    }
+    request
+}
+
+/// A session names its grid's columns; envs fill them in blocks, so the first two of four
+/// spawn on the top stairs-down platform (raised eight risers) and the last two in the top
+/// stairs-up pit (sunk eight). The spec lists the grid's columns. Bad columns are refused.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_curriculum_session_builds_the_columns_it_names() {
+    let server = TestServer::with_limits(Limits::default()).await;
+    let mut c = server.client().await;
+    let created = c
+        .create_session(with_columns(4, "curriculum", &["stairs_down", "stairs_up"]))
+        .await
+        .expect("a session with two columns")
+        .into_inner();
+    let spec = created.spec.expect("spec");
+    assert_eq!(spec.terrain_columns, ["stairs_down", "stairs_up"]);
+    let mut step = step_request(&created.session_id, 4);
+    step.draw_envs = vec![0, 1, 2, 3];
+    let result = c.step(step).await.expect("step").into_inner();
+    let poses = result.body_poses.expect("body_poses");
+    let bodies = spec.body_names.len();
+    let poses = poses.f32_values("body_poses").expect("f32");
+    let base_z: Vec<f32> = (0..4).map(|k| poses[k * bodies * 7 + 2]).collect();
+    for (down, up) in [(0, 2), (0, 3), (1, 2), (1, 3)] {
+        assert!(
+            base_z[down] - base_z[up] > 1.0,
+            "env {down} on stairs down, env {up} on stairs up: base z {base_z:?}"
+        );
+    }
+    // Without columns: legged_gym's 20; on flat ground: none.
+    let default = c
+        .create_session(with_columns(4, "curriculum", &[]))
+        .await
+        .expect("default columns")
+        .into_inner()
+        .spec
+        .expect("spec");
+    assert_eq!(default.terrain_columns.len(), 20);
+    assert_eq!(default.terrain_columns[0], "slope_up");
+    assert_eq!(
+        default
+            .terrain_columns
+            .iter()
+            .filter(|t| t.starts_with("stairs"))
+            .count(),
+        12
+    );
+    let flat = c
+        .create_session(config(2, 3, ""))
+        .await
+        .expect("flat")
+        .into_inner()
+        .spec
+        .expect("spec");
+    assert!(flat.terrain_columns.is_empty());
+    for (request, what) in [
+        (
+            with_columns(4, "curriculum", &["stairs_up", "lava"]),
+            "unknown type",
+        ),
+        (
+            with_columns(4, "stairs_up", &["stairs_up"]),
+            "a pinned tile",
+        ),
+        (with_columns(4, "flat", &["stairs_up"]), "flat ground"),
+        (
+            with_columns(4, "curriculum", &["stairs_up"; 101]),
+            "101 columns",
+        ),
+    ] {
+        assert_refused(&mut c, request, "terrain.columns", what).await;
+    }
+    server.shutdown().await;
 }
 
 /// `request` is refused as INVALID_ARGUMENT, naming `field`.

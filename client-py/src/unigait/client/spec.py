@@ -107,6 +107,8 @@ class Spec:
             ``SessionConfig.robot_drawing``).
         physics_engine: The engine the envs step in (``"rapier"`` or ``"articulated"``; empty
             from older servers).
+        terrain_columns: The curriculum grid's column types, in order (empty on flat ground or
+            a pinned tile, and from older servers).
     """
 
     protocol_version: str
@@ -127,6 +129,7 @@ class Spec:
     body_names: tuple[str, ...] = ()
     robot_drawing_rrd: bytes = b""
     physics_engine: str = ""
+    terrain_columns: tuple[str, ...] = ()
 
     def tensor(self, name: str) -> TensorSpec:
         """The spec of tensor ``name``."""
@@ -229,6 +232,7 @@ class Spec:
             body_names=tuple(msg.body_names),
             robot_drawing_rrd=bytes(msg.robot_drawing_rrd),
             physics_engine=msg.physics_engine,
+            terrain_columns=tuple(msg.terrain_columns),
         )
 
 

@@ -29,6 +29,8 @@ class SessionConfig:
         terrain_mode_levels: The curriculum only: each env's starting (quad, biped) levels, two
             per env, e.g. a resumed run's ``StepResult.mode_levels`` (used when the task keeps a
             level per mode); empty: both modes start on the env's level.
+        terrain_columns: The curriculum only: the grid's column types, in order (repeat a type
+            to give it more columns); empty: the server's default 20 (``Spec.terrain_columns``).
         autoreset: ``"same_step"`` (default) or ``"disabled"``.
         reward_terms: Return the per-term rewards with every step.
         robot_drawing: Send the robot's drawing with the spec (``Spec.robot_drawing_rrd``), for
@@ -42,6 +44,7 @@ class SessionConfig:
     terrain_level: int = 0
     terrain_levels: tuple[int, ...] = ()
     terrain_mode_levels: tuple[int, ...] = ()
+    terrain_columns: tuple[str, ...] = ()
     autoreset: str = "same_step"
     reward_terms: bool = True
     robot_drawing: bool = False
@@ -63,6 +66,7 @@ class SessionConfig:
                 level=self.terrain_level,
                 initial_levels=self.terrain_levels,
                 initial_mode_levels=self.terrain_mode_levels,
+                columns=self.terrain_columns,
             ),
             autoreset=modes[self.autoreset],
             reward_terms=self.reward_terms,

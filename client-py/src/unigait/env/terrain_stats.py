@@ -3,11 +3,12 @@
 The mean level per terrain type and per mode, and the share of each type's ended episodes that
 moved their env up or down a level.
 
-The step reply carries each env's level but not its terrain type. The type needs no wire field:
-the server places env ``i`` of a session of ``n`` envs in grid column ``i * C // n`` (``C``
+The step reply carries each env's level but not its terrain type. The type needs no per-step
+field: the server places env ``i`` of a session of ``n`` envs in grid column ``i * C // n`` (``C``
 columns, legged_gym's blocks; ``initial_column`` in server/sim/src/terrain/curriculum.rs) and
-never moves it to another column, and the default grid's columns are :data:`DEFAULT_COLUMNS`. A
-sharded batch is one session per shard, so columns are counted per shard.
+never moves it to another column, and the session's spec lists the grid's columns
+(``Spec.terrain_columns``). A sharded batch is one session per shard, so columns are counted per
+shard.
 """
 
 from __future__ import annotations
@@ -18,18 +19,6 @@ from collections.abc import Sequence
 import torch
 
 from unigait.env.torch_env import TorchVecEnv
-
-#: The server's default grid columns, in order: (terrain type, number of columns). Mirrors
-#: ``DEFAULT_COLUMNS`` in server/sim/src/terrain/spec.rs (a test compares the two):
-#: legged_gym's proportions 0.1 / 0.1 / 0.35 / 0.25 / 0.2 over 20 columns.
-DEFAULT_COLUMNS: tuple[tuple[str, int], ...] = (
-    ("slope_up", 1),
-    ("slope_down", 1),
-    ("rough_slope", 2),
-    ("stairs_up", 7),
-    ("stairs_down", 5),
-    ("obstacles", 4),
-)
 
 #: Task modes as this module counts them (index 0 quad, 1 biped).
 MODES: tuple[str, ...] = ("quad", "biped")
@@ -44,20 +33,21 @@ def initial_column(env_index: int, num_envs: int, num_columns: int) -> int:
     return (min(env_index, n - 1) * columns) // n
 
 
-def env_terrain_types(terrain: str, counts: Sequence[int]) -> list[str]:
+def env_terrain_types(terrain: str, columns: Sequence[str], counts: Sequence[int]) -> list[str]:
     """The terrain type of every env of a batch.
 
     Args:
         terrain: The spec's terrain description: ``"flat"``, ``"curriculum"`` or
             ``"<type> level <l>"`` (every env pinned to one tile).
+        columns: The curriculum grid's column types (``Spec.terrain_columns``); a curriculum
+            without them (an older server) counts every env as ``"curriculum"``.
         counts: Envs per session, in batch order (one entry unless sharded).
 
     Returns:
         One type name per env (``"flat"`` on flat ground).
     """
     total = sum(counts)
-    if terrain == "curriculum":
-        columns = [name for name, n in DEFAULT_COLUMNS for _ in range(n)]
+    if terrain == "curriculum" and columns:
         return [
             columns[initial_column(i, count, len(columns))]
             for count in counts
@@ -98,7 +88,8 @@ class TerrainLevelStats:
     def for_env(cls, env: TorchVecEnv) -> TerrainLevelStats:
         """The stats of ``env``'s batch (its terrain from the spec, shards from the session)."""
         counts = getattr(env.session, "counts", None) or [env.num_envs]
-        return cls(env_terrain_types(env.spec.terrain, list(counts)), env.device)
+        spec = env.spec
+        return cls(env_terrain_types(spec.terrain, spec.terrain_columns, list(counts)), env.device)
 
     def clear(self) -> None:
         """Start a new rollout's sums."""
