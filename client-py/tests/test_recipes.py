@@ -103,8 +103,9 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
         load_recipe("unified_terrain").stages[:9]
     )
     (bounded, higher_swing, heading, kernel, mirror, quad_heading, friction, run_on, levels) = (
-        load_recipe("unified_terrain").stages[9:]
+        load_recipe("unified_terrain").stages[9:18]
     )
+    (climbs,) = load_recipe("unified_terrain").stages[18:]
     assert terrain.config.policy == settle.config.policy
     assert (
         terrain.config.env.task["rewards"]["weights"]
@@ -202,6 +203,16 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     }
     assert {**kept, "terrain_curriculum": averaged["terrain_curriculum"]} == averaged
     assert levels.config.ppo == friction.config.ppo and levels.carry == "all"
+    # The nineteenth turns two stairs-down columns to slope up in place (decision 0037) and
+    # keeps the rest; every stage before it ran on the server's default grid.
+    assert all(
+        s.config.env.terrain_columns == () for s in load_recipe("unified_terrain").stages[:18]
+    )
+    grid = climbs.config.env.terrain_columns
+    assert len(grid) == 20 and grid.count("slope_up") == 3 and grid.count("stairs_down") == 3
+    assert grid[11:13] == ("slope_up", "slope_up") and grid[4:11] == ("stairs_up",) * 7
+    assert dataclasses.replace(climbs.config.env, terrain_columns=()) == levels.config.env
+    assert climbs.config.ppo == levels.config.ppo and climbs.carry == "all"
     # --set applies on top of every stage.
     small = load_recipe("unified_flat", ["env.num_envs=8"])
     assert [s.config.env.num_envs for s in small.stages] == [8, 8, 8]
