@@ -105,7 +105,7 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     (bounded, higher_swing, heading, kernel, mirror, quad_heading, friction, run_on, levels) = (
         load_recipe("unified_terrain").stages[9:18]
     )
-    (climbs,) = load_recipe("unified_terrain").stages[18:]
+    (climbs, swing) = load_recipe("unified_terrain").stages[18:]
     assert terrain.config.policy == settle.config.policy
     assert (
         terrain.config.env.task["rewards"]["weights"]
@@ -213,6 +213,12 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     assert grid[11:13] == ("slope_up", "slope_up") and grid[4:11] == ("stairs_up",) * 7
     assert dataclasses.replace(climbs.config.env, terrain_columns=()) == levels.config.env
     assert climbs.config.ppo == levels.config.ppo and climbs.carry == "all"
+    # The twentieth keeps the grid and raises the clearance target from 12 to 16 cm alone.
+    raised = swing.config.env.task
+    assert raised["rewards"] == {**kept["rewards"], "foot_clearance_target": 0.16}
+    assert {**raised, "rewards": kept["rewards"]} == kept
+    assert swing.config.env.terrain_columns == grid
+    assert swing.config.ppo == climbs.config.ppo and swing.carry == "all"
     # --set applies on top of every stage.
     small = load_recipe("unified_flat", ["env.num_envs=8"])
     assert [s.config.env.num_envs for s in small.stages] == [8, 8, 8]
