@@ -255,7 +255,12 @@ pub fn run(args: &BenchArgs) -> Result<BenchReport> {
         initial_mode_levels: Vec::new(),
         columns: Vec::new(),
     };
-    let (terrain, _) = unigait_server::terrain_for(Some(&selection), args.seed, args.envs)?;
+    let (terrain, _) = unigait_server::terrain_for(
+        Some(&selection),
+        args.seed,
+        args.envs,
+        &unigait_server::CostCaps::default(),
+    )?;
     let options = VecEnvOptions {
         num_envs: args.envs,
         seed: args.seed,

@@ -53,6 +53,13 @@ pub struct CostCaps {
     /// Smallest `physics.dt` (s): a smaller step makes more physics steps per simulated
     /// second. Default 0.0025 (task default 0.005).
     pub min_physics_dt_us: u32,
+    /// Columns of a curriculum grid (`TerrainConfig.columns`). Default 40 (the default grid
+    /// has 20).
+    pub max_terrain_columns: usize,
+    /// Rough-slope columns of a curriculum grid: their mesh keeps two triangles per cell, where
+    /// the other types' flat faces merge (20 of them measured 307 MB resident against the
+    /// default grid's 41 MB; decision record 0037). Default 4 (the default grid has 2).
+    pub max_rough_slope_columns: usize,
 }
 
 impl Default for CostCaps {
@@ -65,6 +72,8 @@ impl Default for CostCaps {
             max_extra_pgs_iterations: 12,
             max_envs_per_world: 64,
             min_physics_dt_us: 2500,
+            max_terrain_columns: 40,
+            max_rough_slope_columns: 4,
         }
     }
 }

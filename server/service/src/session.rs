@@ -424,8 +424,12 @@ impl Sessions {
             }
         };
         let mut reservation = self.reserve(n)?;
-        let (terrain, terrain_name) =
-            crate::terrain::terrain_for(config.terrain.as_ref(), config.seed, n)?;
+        let (terrain, terrain_name) = crate::terrain::terrain_for(
+            config.terrain.as_ref(),
+            config.seed,
+            n,
+            &self.limits.cost,
+        )?;
         let options = VecEnvOptions {
             num_envs: n,
             seed: config.seed,

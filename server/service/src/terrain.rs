@@ -6,16 +6,19 @@ use unigait_proto::v1::TerrainConfig;
 use unigait_sim::terrain::{Terrain, TerrainKind, TerrainSpec, TerrainType};
 
 use crate::error::ServiceError;
+use crate::limits::CostCaps;
 
 /// Highest starting level of the curriculum when the config leaves it at 0 (legged_gym: 5).
 const DEFAULT_MAX_INIT_LEVEL: u32 = 5;
 
 /// The terrain a session of `num_envs` asked for, with its display name. The grid is generated
-/// from the session seed, so sessions with the same config and seed see the same terrain.
+/// from the session seed, so sessions with the same config and seed see the same terrain. A grid
+/// costlier than `caps` allows is refused before it is built.
 pub fn terrain_for(
     config: Option<&TerrainConfig>,
     seed: u64,
     num_envs: usize,
+    caps: &CostCaps,
 ) -> Result<(Arc<Terrain>, String), ServiceError> {
     let (kind, level) = config.map_or(("", 0), |c| (c.kind.as_str(), c.level));
     let initial_levels = config.map_or(&[][..], |c| c.initial_levels.as_slice());
@@ -38,7 +41,7 @@ pub fn terrain_for(
     let column_types = if columns.is_empty() {
         None
     } else {
-        Some(column_types(kind, columns)?)
+        Some(column_types(kind, columns, caps)?)
     };
     let spec_kind = match kind {
         "" | "flat" => return Ok((Arc::new(Terrain::Flat), "flat".into())),
@@ -86,24 +89,26 @@ pub fn terrain_for(
     Ok((Arc::new(terrain), name))
 }
 
-/// Most grid columns a session may ask for (the grid's own limit, `TerrainSpec::validate`).
-pub const MAX_COLUMNS: usize = 100;
-
 /// The column types a curriculum session named (`TerrainConfig.columns`).
-fn column_types(kind: &str, columns: &[String]) -> Result<Vec<TerrainType>, ServiceError> {
+fn column_types(
+    kind: &str,
+    columns: &[String],
+    caps: &CostCaps,
+) -> Result<Vec<TerrainType>, ServiceError> {
     if kind != "curriculum" {
         return Err(ServiceError::InvalidArgument(format!(
             "terrain.columns: {} columns for a `{kind}` terrain; they are for \"curriculum\"",
             columns.len()
         )));
     }
-    if columns.len() > MAX_COLUMNS {
-        return Err(ServiceError::InvalidArgument(format!(
-            "terrain.columns: {} columns, at most {MAX_COLUMNS}",
-            columns.len()
+    if columns.len() > caps.max_terrain_columns {
+        return Err(ServiceError::LimitExceeded(format!(
+            "terrain.columns: {} columns, over this server's cap of {}",
+            columns.len(),
+            caps.max_terrain_columns
         )));
     }
-    columns
+    let types = columns
         .iter()
         .enumerate()
         .map(|(i, name)| {
@@ -115,7 +120,19 @@ fn column_types(kind: &str, columns: &[String]) -> Result<Vec<TerrainType>, Serv
                 ))
             })
         })
-        .collect()
+        .collect::<Result<Vec<_>, _>>()?;
+    let rough = types
+        .iter()
+        .filter(|&&t| t == TerrainType::RoughSlope)
+        .count();
+    if rough > caps.max_rough_slope_columns {
+        return Err(ServiceError::LimitExceeded(format!(
+            "terrain.columns: {rough} rough_slope columns, over this server's cap of {} (each \
+             keeps two mesh triangles per grid cell)",
+            caps.max_rough_slope_columns
+        )));
+    }
+    Ok(types)
 }
 
 /// The column types of `terrain`'s grid, by name (empty without a grid).

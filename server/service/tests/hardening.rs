@@ -1005,13 +1005,33 @@ async fn a_curriculum_session_builds_the_columns_it_names() {
             "a pinned tile",
         ),
         (with_columns(4, "flat", &["stairs_up"]), "flat ground"),
-        (
-            with_columns(4, "curriculum", &["stairs_up"; 101]),
-            "101 columns",
-        ),
     ] {
         assert_refused(&mut c, request, "terrain.columns", what).await;
     }
+    // A grid costlier than the caps (decision record 0037) is refused before it is built; the
+    // largest one they allow is built.
+    let caps = Limits::default().cost;
+    let mut most = vec!["obstacles"; caps.max_terrain_columns - caps.max_rough_slope_columns];
+    most.extend(vec!["rough_slope"; caps.max_rough_slope_columns]);
+    let over_columns = vec!["stairs_up"; caps.max_terrain_columns + 1];
+    let over_rough = vec!["rough_slope"; caps.max_rough_slope_columns + 1];
+    for (columns, what) in [(&over_columns, "columns"), (&over_rough, "rough_slope")] {
+        let status = c
+            .create_session(with_columns(4, "curriculum", columns))
+            .await
+            .expect_err("over the caps");
+        assert_eq!(status.code(), Code::ResourceExhausted, "{what}: {status}");
+        assert!(status.message().contains(what), "{status}");
+    }
+    let largest = c
+        .create_session(with_columns(4, "curriculum", &most))
+        .await
+        .expect("the largest grid the caps allow")
+        .into_inner();
+    assert_eq!(
+        largest.spec.expect("spec").terrain_columns.len(),
+        most.len()
+    );
     server.shutdown().await;
 }
 
