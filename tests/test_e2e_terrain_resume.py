@@ -123,6 +123,8 @@ def test_a_run_on_a_grid_of_its_own_logs_its_columns(server: str, tmp_path: Path
         "terrain_level/quad",
         "terrain_level/biped",
     }
+    state = torch.load(tmp_path / "model_1.pt", weights_only=False)
+    assert state["terrain_columns"] == ["stairs_down", "slope_up", "slope_up"]
 
 
 RECIPE = """

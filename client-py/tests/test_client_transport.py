@@ -7,6 +7,7 @@ from fakes import FakeSession, start_fake_server
 
 from unigait.client import (
     Client,
+    ProtocolError,
     SessionConfig,
     ShardedSession,
     UnigaitError,
@@ -98,3 +99,16 @@ def test_sharded_session_over_two_fake_servers():
     finally:
         for server, _, _ in servers:
             server.stop(grace=None)
+
+
+def test_a_server_that_ignores_the_grid_columns_is_refused(fake_server):
+    """The fake, like a server older than ``terrain.columns``, builds no grid of its own."""
+    address, servicer = fake_server
+    config = SessionConfig(num_envs=4, terrain="curriculum", terrain_columns=("slope_up",))
+    with Client(address) as client:
+        with pytest.raises(ProtocolError, match=r"predates TerrainConfig\.columns"):
+            client.create_session(config)
+        assert servicer.sims == {}  # the session it built was closed
+    with pytest.raises(ProtocolError, match="slope_up"):
+        open_session([address, address], config)
+    assert servicer.sims == {}

@@ -143,6 +143,13 @@ def test_the_task_is_a_table_set_by_key_and_an_old_checkpoints_string_still_read
     assert apply(TrainConfig(), old).env.task == {"modes": {"biped_probability": 0.0}}
     with pytest.raises(TypeError, match=r"env\.task must be a table"):
         apply(TrainConfig(), {"env": {"task": 3}})
+    # A list's items are checked where the config is read, not later in the protobuf.
+    columns = apply(TrainConfig(), {"env": {"terrain_columns": ["slope_up", "obstacles"]}})
+    assert columns.env.terrain_columns == ("slope_up", "obstacles")
+    with pytest.raises(TypeError, match=r"terrain_columns must hold strs"):
+        apply(TrainConfig(), {"env": {"terrain_columns": ["slope_up", 3]}})
+    with pytest.raises(TypeError, match=r"actor_hidden_dims must hold ints"):
+        apply(TrainConfig(), {"policy": {"actor_hidden_dims": [256, "wide"]}})
 
 
 def test_a_checkpoint_names_the_engine_it_trained_on_or_its_task_or_rapier():

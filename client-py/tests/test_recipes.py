@@ -210,7 +210,9 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     )
     grid = climbs.config.env.terrain_columns
     assert len(grid) == 20 and grid.count("slope_up") == 3 and grid.count("stairs_down") == 3
-    assert grid[11:13] == ("slope_up", "slope_up") and grid[4:11] == ("stairs_up",) * 7
+    default = ["slope_up", "slope_down"] + ["rough_slope"] * 2 + ["stairs_up"] * 7
+    default += ["stairs_down"] * 5 + ["obstacles"] * 4
+    assert list(grid) == [*default[:11], "slope_up", "slope_up", *default[13:]]
     assert dataclasses.replace(climbs.config.env, terrain_columns=()) == levels.config.env
     assert climbs.config.ppo == levels.config.ppo and climbs.carry == "all"
     # The twentieth keeps the grid and raises the clearance target from 12 to 16 cm alone.

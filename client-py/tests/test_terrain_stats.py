@@ -9,6 +9,7 @@ import torch
 from unigait.env.terrain_stats import (
     TerrainLevelStats,
     env_terrain_types,
+    grid_change,
     initial_column,
 )
 
@@ -117,3 +118,18 @@ def test_level_moves_per_type_by_hand() -> None:
     assert math.isclose(out["demoted/stairs_up"], 2 / 3)
     assert out["promoted/obstacles"] == 0.0 and out["demoted/obstacles"] == 0.0
     assert math.isnan(stats.summary()["promoted/stairs_up"])
+
+
+def test_a_resumed_grid_names_the_columns_that_changed_type() -> None:
+    stage_19 = list(DEFAULT_GRID)
+    stage_19[11:13] = ["slope_up", "slope_up"]
+    assert grid_change(DEFAULT_GRID, stage_19) == (
+        "columns that changed type, their envs keeping their levels: "
+        "11 (stairs_down -> slope_up), 12 (stairs_down -> slope_up)"
+    )
+    assert grid_change(DEFAULT_GRID, DEFAULT_GRID) is None
+    assert grid_change([], stage_19) is None  # a checkpoint from before the grid was saved
+    assert grid_change(DEFAULT_GRID, []) is None  # flat ground, or an older server
+    assert grid_change(DEFAULT_GRID, DEFAULT_GRID[:10]) == (
+        "the grid has 10 columns, the checkpoint's had 20"
+    )

@@ -88,8 +88,22 @@ impl Envs {
         config: v1::SessionConfig,
         history_length: usize,
     ) -> Result<Self> {
+        let asked = config
+            .terrain
+            .as_ref()
+            .map(|t| t.columns.clone())
+            .unwrap_or_default();
         let mut session = client.create_session(config).await?;
         let spec = session.spec.clone();
+        if !asked.is_empty() && spec.0.terrain_columns != asked {
+            // A server older than `terrain.columns` builds its default grid without a word.
+            let built = spec.0.terrain_columns.clone();
+            session.close().await?;
+            return Err(Error::Spec(format!(
+                "asked for the grid columns {asked:?} and the server built {built:?}: it \
+                 predates TerrainConfig.columns"
+            )));
+        }
         let dims = Dims::from_spec(&spec, history_length)?;
         let n = spec.num_envs();
         let last = StepData::from_step(&session.initial, &dims, n)?;
@@ -99,7 +113,11 @@ impl Envs {
         Ok(Self {
             physics_engine,
             spec: spec.clone(),
-            terrain_stats: TerrainLevelStats::new(&env_terrain_types(&spec.0.terrain, n)),
+            terrain_stats: TerrainLevelStats::new(&env_terrain_types(
+                &spec.0.terrain,
+                &spec.0.terrain_columns,
+                n,
+            )),
             biped_pose: BipedPoseStats::from_spec(&spec)?,
             history: ObservationHistory::new(&last.obs, history_length, dims.obs),
             stats: EpisodeStats::new(n, reward_terms.len()),

@@ -9,17 +9,6 @@ use unigait_client::Spec;
 use crate::env::StepData;
 use crate::{Error, Result};
 
-/// The server's default grid columns, in order: (terrain type, number of columns). Mirrors
-/// `DEFAULT_COLUMNS` in server/sim/src/terrain/spec.rs (a test compares the two).
-pub const DEFAULT_COLUMNS: [(&str, usize); 6] = [
-    ("slope_up", 1),
-    ("slope_down", 1),
-    ("rough_slope", 2),
-    ("stairs_up", 7),
-    ("stairs_down", 5),
-    ("obstacles", 4),
-];
-
 /// Task modes as the columns count them.
 pub const MODES: [&str; 2] = ["quad", "biped"];
 
@@ -33,15 +22,12 @@ pub fn initial_column(env: usize, n: usize, columns: usize) -> usize {
 }
 
 /// The terrain type of each of `n` envs, from the spec's terrain description (`flat`,
-/// `curriculum` or `<type> level <l>`).
-pub fn env_terrain_types(terrain: &str, n: usize) -> Vec<String> {
-    if terrain == "curriculum" {
-        let columns: Vec<&str> = DEFAULT_COLUMNS
-            .iter()
-            .flat_map(|&(name, k)| std::iter::repeat_n(name, k))
-            .collect();
+/// `curriculum` or `<type> level <l>`) and its grid's column types (`Spec.terrain_columns`); a
+/// curriculum without them (an older server) counts every env as `curriculum`.
+pub fn env_terrain_types(terrain: &str, columns: &[String], n: usize) -> Vec<String> {
+    if terrain == "curriculum" && !columns.is_empty() {
         return (0..n)
-            .map(|e| columns[initial_column(e, n, columns.len())].to_string())
+            .map(|e| columns[initial_column(e, n, columns.len())].clone())
             .collect();
     }
     let name = terrain.split(' ').next().filter(|s| !s.is_empty());
@@ -267,58 +253,51 @@ mod tests {
     use super::*;
 
     #[test]
-    fn default_columns_mirror_the_server() {
-        let text = include_str!("../../server/sim/src/terrain/spec.rs");
-        let block = &text[text
-            .find("pub const DEFAULT_COLUMNS")
-            .expect("the constant")..];
-        let block = &block[..block.find("];").expect("its end")];
-        let pairs: Vec<(String, usize)> = block
-            .split("(TerrainType::")
-            .skip(1)
-            .map(|p| {
-                let (name, rest) = p.split_once(", ").expect("name, count");
-                let count = rest
-                    .split(')')
-                    .next()
-                    .expect("count")
-                    .parse()
-                    .expect("usize");
-                let snake = name
-                    .chars()
-                    .enumerate()
-                    .fold(String::new(), |mut s, (i, c)| {
-                        if c.is_uppercase() && i > 0 {
-                            s.push('_');
-                        }
-                        s.push(c.to_ascii_lowercase());
-                        s
-                    });
-                (snake, count)
-            })
-            .collect();
-        let ours: Vec<(String, usize)> = DEFAULT_COLUMNS
-            .iter()
-            .map(|&(n, k)| (n.to_string(), k))
-            .collect();
-        assert_eq!(pairs, ours);
-    }
-
-    #[test]
     fn columns_in_blocks_as_the_server() {
-        // 40 envs over 20 columns: two envs a column, in order.
-        let types = env_terrain_types("curriculum", 40);
+        // The default grid: 40 envs over 20 columns, two envs a column, in order.
+        let grid: Vec<String> = [
+            ("slope_up", 1),
+            ("slope_down", 1),
+            ("rough_slope", 2),
+            ("stairs_up", 7),
+            ("stairs_down", 5),
+            ("obstacles", 4),
+        ]
+        .iter()
+        .flat_map(|&(name, k)| std::iter::repeat_n(name.to_string(), k))
+        .collect();
+        let types = env_terrain_types("curriculum", &grid, 40);
         assert_eq!(
             &types[..4],
             ["slope_up", "slope_up", "slope_down", "slope_down"]
         );
         assert_eq!(types.iter().filter(|t| *t == "stairs_up").count(), 14);
         assert_eq!(types[39], "obstacles");
+        // A grid of its own: 6 envs on 3 columns.
+        let own: Vec<String> = ["slope_up", "slope_up", "stairs_down"]
+            .map(String::from)
+            .to_vec();
         assert_eq!(
-            env_terrain_types("stairs_up level 3", 2),
+            env_terrain_types("curriculum", &own, 6),
+            [
+                "slope_up",
+                "slope_up",
+                "slope_up",
+                "slope_up",
+                "stairs_down",
+                "stairs_down"
+            ]
+        );
+        // An older server names no columns.
+        assert_eq!(
+            env_terrain_types("curriculum", &[], 2),
+            ["curriculum", "curriculum"]
+        );
+        assert_eq!(
+            env_terrain_types("stairs_up level 3", &[], 2),
             ["stairs_up", "stairs_up"]
         );
-        assert_eq!(env_terrain_types("flat", 1), ["flat"]);
+        assert_eq!(env_terrain_types("flat", &[], 1), ["flat"]);
     }
 
     /// Obs of width 3 with pitch at 1, labels of width 4 with the rear feet at 2..4.

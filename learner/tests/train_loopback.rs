@@ -326,3 +326,47 @@ fn a_milestone_stage_checks_on_the_validation_seed() {
     assert_eq!(done["reason"], "iterations");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `env.terrain_columns` builds the grid the run asks for (decision record 0037), and the log
+/// counts the types the server reports for it.
+#[test]
+fn a_run_on_a_grid_of_its_own_logs_its_columns() {
+    let server =
+        LocalServer::start(&server_binary(None), &["--threads".into(), "1".into()]).unwrap();
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    let dir = fresh_dir("grid");
+    let overrides = Overrides {
+        iterations: Some(1),
+        num_envs: Some(ENVS),
+        seed: Some(3),
+        sets: vec![
+            "env.terrain = \"curriculum\"".into(),
+            "env.terrain_columns = [\"stairs_down\", \"slope_up\", \"slope_up\"]".into(),
+        ],
+        tensorboard: false,
+    };
+    let recipe = load_recipe("quad_flat", &recipes_dir()).unwrap();
+    runtime
+        .block_on(run_recipe(recipe, &overrides, &dir, &server.address))
+        .unwrap();
+    let (header, _) = csv(&dir.join("01_quad").join("progress.csv"));
+    let mut levels: Vec<&str> = header
+        .iter()
+        .map(String::as_str)
+        .filter(|h| h.starts_with("terrain_level/") && h.matches('/').count() == 1)
+        .collect();
+    levels.sort_unstable();
+    assert_eq!(
+        levels,
+        [
+            "terrain_level/biped",
+            "terrain_level/quad",
+            "terrain_level/slope_up",
+            "terrain_level/stairs_down"
+        ]
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -252,6 +252,11 @@ def _coerce(section: type, key: str, value: Any) -> Any:
     if typing.get_origin(hint) is tuple:
         if not isinstance(value, list | tuple):
             value = [value]
+        item = typing.get_args(hint)[0]
+        if item in (int, float, str) and not all(
+            isinstance(v, item) or (item is float and isinstance(v, int)) for v in value
+        ):
+            raise TypeError(f"{section.__name__}.{key} must hold {item.__name__}s, got {value!r}")
         return tuple(value)
     if hint is float and isinstance(value, int):
         return float(value)

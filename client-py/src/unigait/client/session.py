@@ -121,7 +121,16 @@ class Client(ClosesOnExit):
         req = pb.CreateSessionRequest(config=config.to_proto())
         resp = call(lambda: self.stub.CreateSession(req))
         spec = Spec.from_proto(resp.spec)
-        return Session(self, resp.session_id, spec, StepResult.from_proto(resp.initial, spec))
+        session = Session(self, resp.session_id, spec, StepResult.from_proto(resp.initial, spec))
+        if config.terrain_columns and spec.terrain_columns != tuple(config.terrain_columns):
+            # A server older than `terrain.columns` builds its default grid without a word.
+            session.close()
+            raise ProtocolError(
+                f"asked for the grid columns {list(config.terrain_columns)} and the server "
+                f"({spec.server_version}) built {list(spec.terrain_columns) or 'its default'}: "
+                "it predates TerrainConfig.columns"
+            )
+        return session
 
     def evaluate(
         self,

@@ -57,6 +57,28 @@ def env_terrain_types(terrain: str, columns: Sequence[str], counts: Sequence[int
     return [name] * total
 
 
+def grid_change(before: Sequence[str], after: Sequence[str]) -> str | None:
+    """What a resumed run's grid changed: the columns whose type differs, or None.
+
+    ``before`` is a checkpoint's ``terrain_columns``, ``after`` the new session's
+    (``Spec.terrain_columns``); either empty (an older checkpoint or server, or flat ground)
+    tells nothing. Each env keeps its column and its level, which on a changed column is a level
+    of the new type (decision record 0037).
+    """
+    if not before or not after:
+        return None
+    if len(before) != len(after):
+        return f"the grid has {len(after)} columns, the checkpoint's had {len(before)}"
+    changed = [
+        f"{i} ({old} -> {new})"
+        for i, (old, new) in enumerate(zip(before, after, strict=True))
+        if old != new
+    ]
+    if not changed:
+        return None
+    return "columns that changed type, their envs keeping their levels: " + ", ".join(changed)
+
+
 class TerrainLevelStats:
     """Sums of the terrain level over env-steps, by terrain type and by mode, and level moves.
 

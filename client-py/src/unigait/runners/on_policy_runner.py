@@ -385,6 +385,7 @@ class OnPolicyRunner:
             "upright_pitch": self.upright_pitch,
             "terrain_levels": self.terrain_levels,
             "terrain_mode_levels": self.terrain_mode_levels,
+            "terrain_columns": list(self.env.spec.terrain_columns),
             "config": self.cfg.to_dict(),
             "dims": self.dims,
             "provenance": dict(self.provenance),

@@ -28,6 +28,7 @@ from unigait.config import (
     session_config,
 )
 from unigait.env import TorchVecEnv
+from unigait.env.terrain_stats import grid_change
 from unigait.export import export_onnx
 from unigait.live_view import LiveView, ViewTarget, robot_drawer
 from unigait.milestones import milestone as load_milestone
@@ -224,6 +225,9 @@ def run_stage(
             f"stage {stage.dir_name}: envs start on the terrain levels of {source} "
             f"(mean {mean:.2f})"
         )
+        change = grid_change(checkpoint.get("terrain_columns", []), session.spec.terrain_columns)
+        if change:
+            log(f"stage {stage.dir_name}: {change}")
     env = TorchVecEnv(session, cfg.runner.device)
     runner: OnPolicyRunner | None = None
     try:

@@ -24,6 +24,7 @@ from unigait.config import (
     session_config,
 )
 from unigait.env import TorchVecEnv
+from unigait.env.terrain_stats import grid_change
 from unigait.live_view import LiveView, ViewTarget, robot_drawer
 from unigait.provenance import git_commit
 from unigait.runners.on_policy_runner import OnPolicyRunner
@@ -87,6 +88,9 @@ def train(
     if terrain_levels:
         mean = sum(terrain_levels) / len(terrain_levels)
         print(f"envs start on the terrain levels of {source} (mean {mean:.2f})")
+        change = grid_change(checkpoint.get("terrain_columns", []), env.spec.terrain_columns)
+        if change:
+            print(change)
     runner: OnPolicyRunner | None = None
     try:
         runner = runner_class(env, cfg, log_dir)
