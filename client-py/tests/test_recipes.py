@@ -105,7 +105,7 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     (bounded, higher_swing, heading, kernel, mirror, quad_heading, friction, run_on, levels) = (
         load_recipe("unified_terrain").stages[9:18]
     )
-    (climbs, swing) = load_recipe("unified_terrain").stages[18:]
+    (climbs, swing, back) = load_recipe("unified_terrain").stages[18:]
     assert terrain.config.policy == settle.config.policy
     assert (
         terrain.config.env.task["rewards"]["weights"]
@@ -221,6 +221,8 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     assert {**raised, "rewards": kept["rewards"]} == kept
     assert swing.config.env.terrain_columns == grid
     assert swing.config.ppo == climbs.config.ppo and swing.carry == "all"
+    # The twenty-first takes the target back to 12 cm: stage 19's settings again.
+    assert back.config == climbs.config and back.carry == "all"
     # --set applies on top of every stage.
     small = load_recipe("unified_flat", ["env.num_envs=8"])
     assert [s.config.env.num_envs for s in small.stages] == [8, 8, 8]
