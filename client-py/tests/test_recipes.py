@@ -105,7 +105,7 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     (bounded, higher_swing, heading, kernel, mirror, quad_heading, friction, run_on, levels) = (
         load_recipe("unified_terrain").stages[9:18]
     )
-    (climbs, swing, back) = load_recipe("unified_terrain").stages[18:]
+    (climbs, swing, back, kernel_18) = load_recipe("unified_terrain").stages[18:]
     assert terrain.config.policy == settle.config.policy
     assert (
         terrain.config.env.task["rewards"]["weights"]
@@ -223,6 +223,16 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     assert swing.config.ppo == climbs.config.ppo and swing.carry == "all"
     # The twenty-first takes the target back to 12 cm: stage 19's settings again.
     assert back.config == climbs.config and back.carry == "all"
+    # The twenty-second: the paper's clearance sharpness (100) with an 18 cm target, nothing else.
+    reshaped = kernel_18.config.env.task
+    assert reshaped["rewards"] == {
+        **kept["rewards"],
+        "foot_clearance_target": 0.18,
+        "foot_clearance_sharpness": 100.0,
+    }
+    assert {**reshaped, "rewards": kept["rewards"]} == kept
+    assert kernel_18.config.env == dataclasses.replace(back.config.env, task=reshaped)
+    assert kernel_18.config.ppo == back.config.ppo and kernel_18.carry == "all"
     # --set applies on top of every stage.
     small = load_recipe("unified_flat", ["env.num_envs=8"])
     assert [s.config.env.num_envs for s in small.stages] == [8, 8, 8]
