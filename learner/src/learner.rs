@@ -57,6 +57,18 @@ pub fn session_config(cfg: &TrainConfig, start: &StartLevels) -> v1::SessionConf
     }
 }
 
+/// The grid a session built is the one its config named (or it named none): a server older than
+/// `terrain.columns` builds its default grid without a word (decision record 0037).
+pub fn grid_as_asked(asked: &[String], built: &[String]) -> Result<()> {
+    if asked.is_empty() || asked == built {
+        return Ok(());
+    }
+    Err(Error::Spec(format!(
+        "asked for the grid columns {asked:?} and the server built {built:?}: it predates \
+         TerrainConfig.columns"
+    )))
+}
+
 /// A session seen as batched envs: its step stream, the last step, the observation history
 /// and the episode bookkeeping.
 pub struct Envs {
@@ -95,14 +107,9 @@ impl Envs {
             .unwrap_or_default();
         let mut session = client.create_session(config).await?;
         let spec = session.spec.clone();
-        if !asked.is_empty() && spec.0.terrain_columns != asked {
-            // A server older than `terrain.columns` builds its default grid without a word.
-            let built = spec.0.terrain_columns.clone();
+        if let Err(e) = grid_as_asked(&asked, &spec.0.terrain_columns) {
             session.close().await?;
-            return Err(Error::Spec(format!(
-                "asked for the grid columns {asked:?} and the server built {built:?}: it \
-                 predates TerrainConfig.columns"
-            )));
+            return Err(e);
         }
         let dims = Dims::from_spec(&spec, history_length)?;
         let n = spec.num_envs();
@@ -705,6 +712,17 @@ impl Learner {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_grid_other_than_asked_is_refused() {
+        let grid = ["slope_up".to_string(), "stairs_up".to_string()];
+        assert!(grid_as_asked(&grid, &grid).is_ok());
+        assert!(grid_as_asked(&[], &grid).is_ok()); // the server's default, whatever it is
+        assert!(grid_as_asked(&[], &[]).is_ok()); // flat ground
+        let err = grid_as_asked(&grid, &[]).unwrap_err().to_string();
+        assert!(err.contains("predates TerrainConfig.columns"), "{err}");
+        assert!(grid_as_asked(&grid, &grid[..1]).is_err());
+    }
 
     fn tiny() -> (TrainConfig, Dims) {
         let mut cfg = TrainConfig::default();
