@@ -67,7 +67,7 @@ pub fn spec(
         body_names: model.bodies.iter().map(|b| b.name.clone()).collect(),
         robot_drawing_rrd: Default::default(),
         physics_engine: cfg.physics.engine.name().into(),
-        terrain_columns: Vec::new(),
+        terrain_columns: crate::terrain::column_names(env.terrain()),
     })
 }
 

@@ -445,7 +445,6 @@ impl Sessions {
             self.pool.clone(),
         )?;
         let mut spec = convert::spec(&env, autoreset, &terrain_name)?;
-        spec.terrain_columns = crate::terrain::column_names(env.terrain());
         if config.robot_drawing {
             // The recordings' drawing (server/record), once per session that asks.
             spec.robot_drawing_rrd = unigait_record::robot_drawing_rrd(&self.model)

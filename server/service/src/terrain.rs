@@ -58,10 +58,9 @@ pub fn terrain_for(
                 level,
             },
             None => {
-                let known: Vec<&str> = TerrainType::ALL.iter().map(|t| t.name()).collect();
                 return Err(ServiceError::InvalidArgument(format!(
                     "unknown terrain kind `{name}`; known: flat, curriculum, {}",
-                    known.join(", ")
+                    type_names()
                 )));
             }
         },
@@ -113,10 +112,9 @@ fn column_types(
         .enumerate()
         .map(|(i, name)| {
             TerrainType::from_name(name).ok_or_else(|| {
-                let known: Vec<&str> = TerrainType::ALL.iter().map(|t| t.name()).collect();
                 ServiceError::InvalidArgument(format!(
                     "terrain.columns[{i}]: unknown terrain type `{name}`; known: {}",
-                    known.join(", ")
+                    type_names()
                 ))
             })
         })
@@ -144,4 +142,10 @@ pub fn column_names(terrain: &Terrain) -> Vec<String> {
             .map(|t| t.name().to_string())
             .collect()
     })
+}
+
+/// Every terrain type's name, comma-separated (for the errors that list them).
+fn type_names() -> String {
+    let names: Vec<&str> = TerrainType::ALL.iter().map(|t| t.name()).collect();
+    names.join(", ")
 }
