@@ -3,7 +3,9 @@ r"""Where does a checkpoint stop on a terrain? Progress and reward terms per pin
 Every env sits on one pinned tile (``--terrain stairs_up``, level by level), in one mode for the
 whole episode with one fixed command, noise-free, as in ``probe_biped_walk.py``. Per level the
 probe reports the distance walked along the heading (the velocity label integrated in the
-heading frame: the distance the curriculum's promotion counts), the share of envs that made the
+heading frame: the distance the curriculum's promotion counts), how far the base got from where
+it stood (its reach, which decision record 0038 judges: a robot that paces along a riser walks
+along its heading without getting farther), the share of envs that made the
 curriculum's promotion distance (0.7 of the commanded distance, 2 m at least) and its demotion
 line (0.5), the share that fell, and the reward terms whose per-step mean differs most from the
 same policy on flat ground (where the terrain costs it reward, and what it is paid for), e.g.::
@@ -30,6 +32,7 @@ PROMOTE, DEMOTE = (
     0.5,
 )  # the curriculum's shares of the commanded distance (decision 0022)
 MIN_PROMOTE_M = 2.0
+MAX_DRAWN = 64  # the envs a step returns poses of
 
 
 def overrides(mode: str, vx: float, episode_s: float) -> str:
@@ -54,9 +57,13 @@ class Rollout:
         fell: torch.Tensor,
         terms: torch.Tensor,
         apex: torch.Tensor,
+        reach: torch.Tensor,
     ) -> None:
         self.distance, self.estimated, self.fell, self.terms = distance, estimated, fell, terms
         self.apex = apex  # [4] the 90th percentile of each foot sole's height over the terrain
+        # [min(N, 64)] the farthest each env's base got from where it stood after its first step
+        # (m): what decision record 0038 judges, where `distance` counts turns in full.
+        self.reach = reach
 
 
 def rollout(
@@ -97,11 +104,20 @@ def rollout(
     counted = 0
     foot_height = env.spec.labels.slice("foot_height")
     heights = []
+    drawn = list(range(min(envs, MAX_DRAWN)))
+    start: torch.Tensor | None = None
+    reach = torch.zeros(len(drawn))
     for _ in range(steps):
         with torch.no_grad():
             actions = policy(history.flat.view(envs, 3, -1))
             actions = noise(actions)
-        out = env.step(actions)
+        out = env.step(actions, draw_envs=drawn)
+        if out.body_poses is not None:
+            base = torch.as_tensor(out.body_poses[:, 0, :2].copy())
+            start = base if start is None else start
+            reach = torch.where(
+                alive[: len(drawn)], torch.maximum(reach, (base - start).norm(dim=1)), reach
+            )
         history.push(out.obs, out.dones)
         frame = heading_frame(out.obs, at)
         forward = in_heading_frame(frame, out.labels[:, at.velocity])[:, 0]
@@ -118,7 +134,8 @@ def rollout(
     env.close()
     fell = ~alive
     apex = torch.cat(heights).quantile(0.9, dim=0)
-    return Rollout(distance, estimated, fell, terms / max(counted, 1), apex), env.spec.reward_terms
+    rollout = Rollout(distance, estimated, fell, terms / max(counted, 1), apex, reach)
+    return rollout, env.spec.reward_terms
 
 
 def main() -> None:
@@ -171,6 +188,8 @@ def main() -> None:
                 f"{a.terrain} level {level}: walked {walked.mean():+.2f} m "
                 f"(quartiles {walked.quantile(0.25):+.2f} / {walked.median():+.2f} / "
                 f"{walked.quantile(0.75):+.2f}; estimated {r.estimated.mean():+.2f}), "
+                f"reach {r.reach.mean():.2f} m (quartiles {r.reach.quantile(0.25):.2f} / "
+                f"{r.reach.median():.2f} / {r.reach.quantile(0.75):.2f}), "
                 f"promoted {(walked > promote_m).float().mean():.2f}, "
                 f"demoted {(walked < DEMOTE * commanded).float().mean():.2f}, "
                 f"fell {r.fell.float().mean():.2f}, feet's 90th percentile height "

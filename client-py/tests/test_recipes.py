@@ -105,7 +105,7 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     (bounded, higher_swing, heading, kernel, mirror, quad_heading, friction, run_on, levels) = (
         load_recipe("unified_terrain").stages[9:18]
     )
-    (climbs, swing, back, kernel_18) = load_recipe("unified_terrain").stages[18:]
+    (climbs, swing, back, kernel_18, reach) = load_recipe("unified_terrain").stages[18:]
     assert terrain.config.policy == settle.config.policy
     assert (
         terrain.config.env.task["rewards"]["weights"]
@@ -233,6 +233,19 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     assert {**reshaped, "rewards": kept["rewards"]} == kept
     assert kernel_18.config.env == dataclasses.replace(back.config.env, task=reshaped)
     assert kernel_18.config.ppo == back.config.ppo and kernel_18.carry == "all"
+    # The twenty-third judges the walked distance by the robot's reach and gives the biped the
+    # quad's lines again, nothing else.
+    judged = reach.config.env.task
+    assert reshaped["terrain_curriculum"]["promote_share_biped"] == 0.4
+    assert judged["terrain_curriculum"] == {
+        **reshaped["terrain_curriculum"],
+        "judge_reach": True,
+        "promote_share_biped": 0.7,
+        "demote_share_biped": 0.5,
+    }
+    assert {**judged, "terrain_curriculum": reshaped["terrain_curriculum"]} == reshaped
+    assert reach.config.env == dataclasses.replace(kernel_18.config.env, task=judged)
+    assert reach.config.ppo == kernel_18.config.ppo and reach.carry == "all"
     # --set applies on top of every stage.
     small = load_recipe("unified_flat", ["env.num_envs=8"])
     assert [s.config.env.num_envs for s in small.stages] == [8, 8, 8]

@@ -325,6 +325,7 @@ fn curriculum_levels_move_by_the_rule() {
         commanded,
         commanded_biped: 0.0,
         walked_biped: 0.0,
+        ..EpisodeDistance::default()
     };
     let rule = LevelRule::default();
     let terrain = Terrain::from_spec(&curriculum(5), 0).expect("terrain");
@@ -653,4 +654,53 @@ fn each_mode_keeps_its_own_level() {
         biped_started.iter().any(|&s| s > 1),
         "no env's biped level moved"
     );
+}
+
+/// Decision record 0038: each step adds the base's distance from its spawn point and the
+/// commanded path's. Robots stand (zero actions) on four legs under 0.5 m/s forward and
+/// 0.5 rad/s: after 0.8 s the commanded path is on a 1 m arc, 0.4 rad round it (a chord of
+/// 2 sin 0.2 = 0.397 m from the spawn point), and the base's reach is the farthest its own
+/// position got from the tile's origin, a few centimetres.
+#[test]
+fn each_step_adds_the_reach_of_the_base_and_of_its_commands() {
+    let cfg = TaskConfig::embedded_default()
+        .with_overrides(
+            "[terrain_curriculum]\njudge_reach = true\n\
+             [env]\nrandom_initial_episode_step = false\n\
+             [modes]\nbiped_probability = 0.0\nresampling_time_s = 600.0\n\
+             [commands]\nresampling_time_s = 600.0\nzero_below = 0.0\n\
+             quad = { vx = [0.5, 0.5], vy = [0.0, 0.0], wz = [0.5, 0.5] }\n\
+             [init]\nlinvel = [0.0, 0.0]\nangvel = [0.0, 0.0]\npitch = [0.0, 0.0]\n",
+        )
+        .expect("config");
+    let n = 8;
+    let terrain = Terrain::from_spec(&curriculum(0), 0).expect("terrain");
+    let mut env = batch_on(terrain, cfg, n, 2);
+    let zeros = vec![0.0; n * NUM_JOINTS];
+    let mut farthest = vec![0.0f32; n];
+    for _ in 0..40 {
+        env.step(&zeros).expect("step");
+        for (i, far) in farthest.iter_mut().enumerate() {
+            let (e, s) = (env.env_state(i), env.robot_state(i));
+            let offset = (s.base_pos.x - e.origin[0]).hypot(s.base_pos.y - e.origin[1]);
+            *far = far.max(offset);
+        }
+    }
+    let chord = 2.0 * 0.2f32.sin();
+    for (i, &far) in farthest.iter().enumerate() {
+        let reach = env.env_state(i).distance.reach;
+        assert!(
+            (reach.commanded[0] - chord).abs() < 0.01,
+            "env {i}: {reach:?}"
+        );
+        assert_eq!(reach.commanded[1], 0.0, "env {i}: no biped steps");
+        assert!(
+            (reach.walked[0] - far).abs() < 1e-5 && far < 0.1,
+            "env {i}: {reach:?}, {far}"
+        );
+        assert!(
+            (reach.share() - far / reach.commanded[0]).abs() < 1e-4,
+            "env {i}"
+        );
+    }
 }

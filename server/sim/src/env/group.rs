@@ -404,11 +404,17 @@ impl EnvGroup {
             truncated = !terminated && self.envs[slot].episode_step >= ctx.max_episode_steps;
             if sh.terrain.grid().is_some() {
                 let env = &mut self.envs[slot];
-                let v = to_heading_frame(heading_direction(s.base_rot), s.base_linvel);
+                let heading = heading_direction(s.base_rot);
+                let v = to_heading_frame(heading, s.base_linvel);
                 let command = [env.command[0], env.command[1]];
                 let dt = cfg.policy_dt();
                 let biped = env.mode == TaskMode::Biped;
                 env.distance.add_step(command, [v.x, v.y], dt, biped);
+                let offset = [s.base_pos.x - env.origin[0], s.base_pos.y - env.origin[1]];
+                let yaw = heading.y.atan2(heading.x);
+                env.distance
+                    .reach
+                    .add_step(offset, yaw, env.command, dt, biped);
                 if terminated {
                     let left = ctx.max_episode_steps.saturating_sub(env.episode_step);
                     env.distance.add_unlived(command, left as f32 * dt, biped);

@@ -38,6 +38,82 @@ pub struct EpisodeDistance {
     pub commanded_biped: f32,
     /// The part of `walked` walked in biped mode (m).
     pub walked_biped: f32,
+    /// How far from the spawn point the base got, against how far the commands would have
+    /// taken it (decision record 0038).
+    pub reach: Reach,
+}
+
+/// The farthest an episode's base got from its spawn point, and the farthest its commanded path
+/// did, per mode (quad, biped). The commanded path starts at the spawn point and heading and
+/// follows the commands (its heading turns at the commanded yaw rate, never at the robot's); at
+/// a mode switch it restarts from where the base is, so one mode's shortfall is not charged to
+/// the other. A robot that turns at a riser and walks along it tracks its command in its own
+/// frame but gets no farther from the spawn point, while its commanded path climbs on.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Reach {
+    /// Farthest distance from the spawn point (m) the base reached, per mode.
+    pub walked: [f32; 2],
+    /// Farthest distance from the spawn point (m) the commanded path reached, per mode.
+    pub commanded: [f32; 2],
+    /// The commanded path's point (m, from the spawn point, world frame), heading (rad) and
+    /// mode (biped or not); `None` before the episode's first step.
+    path: Option<([f32; 2], f32, bool)>,
+    /// The base's offset from the spawn point after the last step (m).
+    last: [f32; 2],
+}
+
+impl Reach {
+    /// One step of `dt` seconds: the base is at `offset` from the spawn point (m, world frame)
+    /// with heading `yaw` (rad), under `command` (vx, vy in the heading frame, m/s; yaw rate,
+    /// rad/s), in biped mode or not.
+    pub fn add_step(
+        &mut self,
+        offset: [f32; 2],
+        yaw: f32,
+        command: [f32; 3],
+        dt: f32,
+        biped: bool,
+    ) {
+        if !(offset.iter().chain(&command).all(|v| v.is_finite()) && yaw.is_finite()) {
+            return;
+        }
+        let (mut point, mut heading) = match self.path {
+            // A mode switch restarts the path where the base was, keeping the commanded heading.
+            Some((point, heading, mode)) if mode == biped => (point, heading),
+            Some((_, heading, _)) => (self.last, heading),
+            None => ([0.0, 0.0], yaw),
+        };
+        self.last = offset;
+        let (sin, cos) = heading.sin_cos();
+        point[0] += (cos * command[0] - sin * command[1]) * dt;
+        point[1] += (sin * command[0] + cos * command[1]) * dt;
+        heading += command[2] * dt;
+        self.path = Some((point, heading, biped));
+        let m = usize::from(biped);
+        self.walked[m] = self.walked[m].max(offset[0].hypot(offset[1]));
+        self.commanded[m] = self.commanded[m].max(point[0].hypot(point[1]));
+    }
+
+    /// The base's reach as a share of the commanded path's, the farthest of either mode; 1 when
+    /// the commands asked for less than 1 cm.
+    pub fn share(&self) -> f32 {
+        let commanded = self.commanded[0].max(self.commanded[1]);
+        if commanded < 0.01 {
+            1.0
+        } else {
+            self.walked[0].max(self.walked[1]) / commanded
+        }
+    }
+
+    /// One mode's part, the other's emptied.
+    fn in_mode(&self, biped: bool) -> Self {
+        let keep = |r: [f32; 2]| if biped { [0.0, r[1]] } else { [r[0], 0.0] };
+        Self {
+            walked: keep(self.walked),
+            commanded: keep(self.commanded),
+            ..*self
+        }
+    }
 }
 
 impl EpisodeDistance {
@@ -81,6 +157,7 @@ impl EpisodeDistance {
                 commanded: self.commanded_biped,
                 commanded_biped: self.commanded_biped,
                 walked_biped: self.walked_biped,
+                reach: self.reach.in_mode(true),
             }
         } else {
             Self {
@@ -88,6 +165,7 @@ impl EpisodeDistance {
                 commanded: self.commanded - self.commanded_biped,
                 commanded_biped: 0.0,
                 walked_biped: 0.0,
+                reach: self.reach.in_mode(false),
             }
         }
     }
@@ -120,6 +198,11 @@ pub struct LevelRule {
     /// level, and only what it walked in that mode moves that level (decision record 0036).
     /// Off: one level per env, judged on both modes together.
     pub per_mode_levels: bool,
+    /// The walked distance counts only as far as the robot's reach from its spawn point bears
+    /// it out: at most its commanded distance times its reach over its commanded path's
+    /// ([`Reach`], decision record 0038). Off: the walked distance alone, which a robot that
+    /// turns at a riser and walks along it makes in full.
+    pub judge_reach: bool,
 }
 
 impl Default for LevelRule {
@@ -138,6 +221,7 @@ impl Default for LevelRule {
             promote_share_biped: 0.7,
             demote_share_biped: 0.5,
             per_mode_levels: false,
+            judge_reach: false,
         }
     }
 }
@@ -183,7 +267,13 @@ pub fn next_level(
     num_levels: u32,
     rng: &mut impl Rng,
 ) -> u32 {
-    let walked = episode.walked;
+    let walked = if rule.judge_reach {
+        episode
+            .walked
+            .min(episode.commanded * episode.reach.share())
+    } else {
+        episode.walked
+    };
     let up = walked > episode.line(rule.promote_share, rule.promote_share_biped)
         && walked >= rule.promote_min_distance;
     let down = !up && walked < episode.line(rule.demote_share, rule.demote_share_biped);

@@ -13,6 +13,7 @@ const RULE: LevelRule = LevelRule {
     promote_share_biped: 0.7,
     demote_share_biped: 0.5,
     per_mode_levels: false,
+    judge_reach: false,
 };
 
 const DT: f32 = 0.02;
@@ -28,6 +29,7 @@ fn level_after(current: u32, walked: f32, commanded: f32) -> u32 {
             commanded,
             commanded_biped: 0.0,
             walked_biped: 0.0,
+            ..EpisodeDistance::default()
         },
         &RULE,
         10,
@@ -121,6 +123,7 @@ fn passing_the_top_level_sends_to_a_random_level() {
         commanded: 5.0,
         commanded_biped: 0.0,
         walked_biped: 0.0,
+        ..EpisodeDistance::default()
     };
     let mut seen = [false; 10];
     for _ in 0..500 {
@@ -259,4 +262,140 @@ fn the_rule_is_checked_field_by_field() {
         let err = rule.validate().expect_err(field).to_string();
         assert!(err.contains(field), "{err}");
     }
+}
+
+/// `RULE` with the reach judged (decision record 0038).
+const REACH_RULE: LevelRule = LevelRule {
+    judge_reach: true,
+    ..RULE
+};
+
+/// Legs of `steps` steps, each at heading `yaw` (rad) and `speed` (m/s) in the robot's own
+/// frame, under a straight forward command of `command` m/s: the base's offset from the spawn
+/// point is integrated here, apart from `Reach`'s commanded path.
+fn walk_legs(d: &mut EpisodeDistance, legs: &[(usize, f32, f32)], command: f32, biped: bool) {
+    let mut at = [0.0f32, 0.0];
+    for &(steps, yaw, speed) in legs {
+        for _ in 0..steps {
+            at[0] += yaw.cos() * speed * DT;
+            at[1] += yaw.sin() * speed * DT;
+            d.add_step([command, 0.0], [speed, 0.0], DT, biped);
+            d.reach.add_step(at, yaw, [command, 0.0, 0.0], DT, biped);
+        }
+    }
+}
+
+/// The probe behind decision record 0038: told to walk straight at 0.4 m/s, the biped reaches
+/// the first riser, turns and paces along it at full speed. It tracks its command in its own
+/// frame (7.2 m of 7.2) and gets no farther than 1.56 m from its spawn point.
+#[test]
+fn a_robot_that_paces_along_a_riser_is_judged_by_its_reach() {
+    use std::f32::consts::FRAC_PI_2;
+    let mut d = EpisodeDistance::default();
+    // 1.2 m out along x, then 1 m along +y, then 2 m back and forth along the riser (x = 1.2).
+    let legs = [
+        (150, 0.0, 0.4),
+        (125, FRAC_PI_2, 0.4),
+        (250, -FRAC_PI_2, 0.4),
+        (250, FRAC_PI_2, 0.4),
+        (125, -FRAC_PI_2, 0.4),
+    ];
+    walk_legs(&mut d, &legs, 0.4, true);
+    assert!(
+        (d.walked - 7.2).abs() < 1e-3 && (d.commanded - 7.2).abs() < 1e-3,
+        "{d:?}"
+    );
+    let reach = 1.2f32.hypot(1.0);
+    assert!((d.reach.walked[1] - reach).abs() < 1e-3, "{:?}", d.reach);
+    assert!((d.reach.commanded[1] - 7.2).abs() < 1e-3, "{:?}", d.reach);
+    assert!((d.reach.share() - reach / 7.2).abs() < 1e-4);
+    // Walked alone it is promoted; judged by its reach (1.56 m of 7.2, under the 3.6 m
+    // demotion line) it goes down, on the biped's own lines too.
+    assert_eq!(level_under(&RULE, 3, d), 4);
+    assert_eq!(level_under(&REACH_RULE, 3, d), 2);
+    assert_eq!(
+        level_under(
+            &LevelRule {
+                judge_reach: true,
+                ..BIPED_RULE
+            },
+            3,
+            d
+        ),
+        2
+    );
+    assert_eq!(level_under(&REACH_RULE, 3, d.in_mode(true)), 2);
+}
+
+/// A robot that follows its commands, turns included, is judged on what it walked, as before.
+#[test]
+fn following_the_commanded_path_keeps_the_walked_distance() {
+    // 18 s on an arc: 0.8 m/s at a commanded 0.3 rad/s, walked at 0.8 x 0.75 with the yaw rate
+    // tracked, from heading 0.5 rad. The base's offset is the arc's closed form.
+    let (speed, wz, yaw0) = (0.6f32, 0.3f32, 0.5f32);
+    let mut d = EpisodeDistance::default();
+    for k in 1..=EPISODE {
+        let t = k as f32 * DT;
+        let yaw = yaw0 + wz * t;
+        let at = [
+            speed / wz * (yaw.sin() - yaw0.sin()),
+            speed / wz * (yaw0.cos() - yaw.cos()),
+        ];
+        d.add_step([0.8, 0.0], [speed, 0.0], DT, false);
+        d.reach
+            .add_step(at, yaw - wz * DT, [0.8, 0.0, wz], DT, false);
+    }
+    // Both arcs turn 5.4 rad, past half a turn, so each gets a diameter from the spawn point:
+    // the walked one on a 2 m radius, the commanded one on 8/3 m.
+    let far = |radius: f32| 2.0 * radius;
+    assert!((d.reach.walked[0] - far(2.0)).abs() < 0.01, "{:?}", d.reach);
+    assert!(
+        (d.reach.commanded[0] - far(8.0 / 3.0)).abs() < 0.02,
+        "{:?}",
+        d.reach
+    );
+    assert!((d.reach.share() - 0.75).abs() < 0.01);
+    // 10.8 m of 14.4 (75 %): promoted under either rule.
+    assert!((d.walked - 10.8).abs() < 1e-2, "{d:?}");
+    assert_eq!(level_under(&RULE, 3, d), 4);
+    assert_eq!(level_under(&REACH_RULE, 3, d), 4);
+}
+
+/// A mode switch restarts the commanded path at the base: the quad's stall at a riser is
+/// charged to the quad's level, not to the biped that walks on from there.
+#[test]
+fn one_modes_shortfall_is_not_charged_to_the_other() {
+    let mut d = EpisodeDistance::default();
+    walk_legs(&mut d, &[(300, 0.0, 0.2)], 0.8, false);
+    // The biped goes on along x from 1.2 m.
+    let mut at = [1.2f32, 0.0];
+    for _ in 0..600 {
+        at[0] += 0.32 * DT;
+        d.add_step([0.4, 0.0], [0.32, 0.0], DT, true);
+        d.reach.add_step(at, 0.0, [0.4, 0.0, 0.0], DT, true);
+    }
+    assert!((d.reach.walked[0] - 1.2).abs() < 1e-3 && (d.reach.commanded[0] - 4.8).abs() < 1e-3);
+    // Restarted at 1.2 m, the biped's commanded path reaches 6.0 m, its base 5.04 m.
+    assert!((d.reach.walked[1] - 5.04).abs() < 1e-3, "{:?}", d.reach);
+    assert!((d.reach.commanded[1] - 6.0).abs() < 1e-3, "{:?}", d.reach);
+    let (quad, two) = (d.in_mode(false), d.in_mode(true));
+    assert!((quad.reach.share() - 0.25).abs() < 1e-4);
+    assert!((two.reach.share() - 0.84).abs() < 1e-4);
+    // The quad's 25 % moves its level down, the biped's 80 % up, under either rule.
+    for rule in [&RULE, &REACH_RULE] {
+        assert_eq!(level_under(rule, 3, quad), 2);
+        assert_eq!(level_under(rule, 3, two), 4);
+    }
+}
+
+#[test]
+fn a_reach_ignores_non_finite_steps_and_an_empty_command() {
+    let mut r = Reach::default();
+    r.add_step([f32::NAN, 0.0], 0.0, [0.4, 0.0, 0.0], DT, false);
+    assert_eq!(r, Reach::default());
+    // Standing still under no command: nothing asked, nothing charged.
+    for _ in 0..100 {
+        r.add_step([0.0, 0.0], 0.0, [0.0, 0.0, 0.0], DT, false);
+    }
+    assert_eq!(r.share(), 1.0);
 }

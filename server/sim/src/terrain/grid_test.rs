@@ -11,6 +11,7 @@ fn walked(walked: f32, commanded: f32) -> EpisodeDistance {
         commanded,
         commanded_biped: 0.0,
         walked_biped: 0.0,
+        ..EpisodeDistance::default()
     }
 }
 

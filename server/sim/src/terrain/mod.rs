@@ -23,7 +23,7 @@ use rapier3d::prelude::{ColliderBuilder, SharedShape};
 
 use crate::error::SimError;
 
-pub use curriculum::{EpisodeDistance, LevelRule, initial_column, next_level};
+pub use curriculum::{EpisodeDistance, LevelRule, Reach, initial_column, next_level};
 pub use grid::TerrainGrid;
 pub use spec::{
     DEFAULT_COLUMNS, TerrainCollider, TerrainKind, TerrainSpec, TerrainType, default_columns,
