@@ -105,7 +105,7 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     (bounded, higher_swing, heading, kernel, mirror, quad_heading, friction, run_on, levels) = (
         load_recipe("unified_terrain").stages[9:18]
     )
-    (climbs, swing, back, kernel_18, reach) = load_recipe("unified_terrain").stages[18:]
+    (climbs, swing, back, kernel_18, reach, min_reach) = load_recipe("unified_terrain").stages[18:]
     assert terrain.config.policy == settle.config.policy
     assert (
         terrain.config.env.task["rewards"]["weights"]
@@ -246,6 +246,15 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     assert {**judged, "terrain_curriculum": reshaped["terrain_curriculum"]} == reshaped
     assert reach.config.env == dataclasses.replace(kernel_18.config.env, task=judged)
     assert reach.config.ppo == kernel_18.config.ppo and reach.carry == "all"
+    # The twenty-fourth adds a minimum reach for a promotion, nothing else.
+    bounded = min_reach.config.env.task
+    assert bounded["terrain_curriculum"] == {
+        **judged["terrain_curriculum"],
+        "promote_min_reach": 4.0,
+    }
+    assert {**bounded, "terrain_curriculum": judged["terrain_curriculum"]} == judged
+    assert min_reach.config.env == dataclasses.replace(reach.config.env, task=bounded)
+    assert min_reach.config.ppo == reach.config.ppo and min_reach.carry == "all"
     # --set applies on top of every stage.
     small = load_recipe("unified_flat", ["env.num_envs=8"])
     assert [s.config.env.num_envs for s in small.stages] == [8, 8, 8]

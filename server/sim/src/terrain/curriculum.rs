@@ -101,8 +101,13 @@ impl Reach {
         if commanded < 0.01 {
             1.0
         } else {
-            self.walked[0].max(self.walked[1]) / commanded
+            self.farthest() / commanded
         }
+    }
+
+    /// The farthest the base got from its spawn point in either mode (m).
+    pub fn farthest(&self) -> f32 {
+        self.walked[0].max(self.walked[1])
     }
 
     /// One mode's part, the other's emptied.
@@ -203,6 +208,10 @@ pub struct LevelRule {
     /// ([`Reach`], decision record 0038). Off: the walked distance alone, which a robot that
     /// turns at a riser and walks along it makes in full.
     pub judge_reach: bool,
+    /// Up only when the base also got this far from its spawn point (m), in the judged mode:
+    /// legged_gym's own promotion, half a tile, which slow commands cannot lower
+    /// (decision record 0038). 0: no such bound.
+    pub promote_min_reach: f32,
 }
 
 impl Default for LevelRule {
@@ -222,6 +231,7 @@ impl Default for LevelRule {
             demote_share_biped: 0.5,
             per_mode_levels: false,
             judge_reach: false,
+            promote_min_reach: 0.0,
         }
     }
 }
@@ -249,13 +259,15 @@ impl LevelRule {
             self.demote_share_biped,
             self.promote_share_biped,
         )?;
-        check("promote_min_distance", self.promote_min_distance, 1000.0)
+        check("promote_min_distance", self.promote_min_distance, 1000.0)?;
+        check("promote_min_reach", self.promote_min_reach, 1000.0)
     }
 }
 
 /// The level after an episode: up one when the env walked more than its promotion line
 /// (`promote_share` of the distance commanded on four legs plus `promote_share_biped` of the
-/// distance commanded on two) and at least `promote_min_distance`; down one when it walked less
+/// distance commanded on two), at least `promote_min_distance` and, with `promote_min_reach`, got
+/// that far from its spawn point; down one when it walked less
 /// than its demotion line and is not moving up (legged_gym's demotion). Going down stops at level
 /// 0; going past the top level sends the env to a level drawn uniformly from `0..num_levels`, so
 /// solved envs keep visiting every level (legged_gym). Why relative to the commands:
@@ -275,7 +287,8 @@ pub fn next_level(
         episode.walked
     };
     let up = walked > episode.line(rule.promote_share, rule.promote_share_biped)
-        && walked >= rule.promote_min_distance;
+        && walked >= rule.promote_min_distance
+        && episode.reach.farthest() >= rule.promote_min_reach;
     let down = !up && walked < episode.line(rule.demote_share, rule.demote_share_biped);
     if up {
         let next = current.saturating_add(1);

@@ -14,6 +14,7 @@ const RULE: LevelRule = LevelRule {
     demote_share_biped: 0.5,
     per_mode_levels: false,
     judge_reach: false,
+    promote_min_reach: 0.0,
 };
 
 const DT: f32 = 0.02;
@@ -258,6 +259,13 @@ fn the_rule_is_checked_field_by_field() {
             },
             "terrain_curriculum.promote_min_distance",
         ),
+        (
+            LevelRule {
+                promote_min_reach: f32::NAN,
+                ..RULE
+            },
+            "terrain_curriculum.promote_min_reach",
+        ),
     ] {
         let err = rule.validate().expect_err(field).to_string();
         assert!(err.contains(field), "{err}");
@@ -398,4 +406,36 @@ fn a_reach_ignores_non_finite_steps_and_an_empty_command() {
         r.add_step([0.0, 0.0], 0.0, [0.0, 0.0, 0.0], DT, false);
     }
     assert_eq!(r.share(), 1.0);
+}
+
+/// Decision record 0038, its second part: a slow command asks little, so a biped that climbs two
+/// risers and stalls there can make a share of it. Told 0.15 m/s for 18 s (2.7 m), it walks
+/// straight out 2.3 m and stands: 85%, promoted under the reach rule alone; with a minimum reach
+/// of 4 m (half a tile, legged_gym's promotion) it stays. One that gets 4.2 m out is promoted.
+#[test]
+fn a_promotion_needs_the_reach_asked_for() {
+    let rule = LevelRule {
+        promote_min_reach: 4.0,
+        ..REACH_RULE
+    };
+    let mut stalled = EpisodeDistance::default();
+    walk_legs(
+        &mut stalled,
+        &[(767, 0.0, 0.15), (133, 0.0, 0.0)],
+        0.15,
+        true,
+    );
+    assert!(
+        (stalled.reach.farthest() - 2.3).abs() < 1e-2,
+        "{:?}",
+        stalled.reach
+    );
+    assert!((stalled.commanded - 2.7).abs() < 1e-3);
+    assert_eq!(level_under(&REACH_RULE, 3, stalled), 4);
+    assert_eq!(level_under(&rule, 3, stalled), 3);
+    let mut far = EpisodeDistance::default();
+    walk_legs(&mut far, &[(900, 0.0, 0.2333)], 0.25, true);
+    assert!((far.reach.farthest() - 4.2).abs() < 1e-2, "{:?}", far.reach);
+    assert_eq!(level_under(&rule, 3, far), 4);
+    assert_eq!(level_under(&rule, 3, far.in_mode(true)), 4);
 }
