@@ -118,6 +118,15 @@ def main() -> None:
     stage = load_recipe(a.recipe).stages[a.stage - 1]
     task = stage.config.env.task
     lines = Lines.of(task)
+    rule = task.get("terrain_curriculum", {})
+    if rule.get("judge_reach") or rule.get("promote_min_reach"):
+        # The reach needs the base's path and the commanded one (decision record 0038); this
+        # probe counts the walked distance alone, so its verdicts are an upper bound there.
+        print(
+            "note: this stage judges reach (judge_reach / promote_min_reach); the verdicts below"
+            " count the walked distance alone and overstate promotions",
+            flush=True,
+        )
     with LocalServer() as server:
         for level in a.levels:
             started, walked, asked = episodes(
