@@ -8,6 +8,7 @@ import dataclasses
 import json
 import re
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -79,6 +80,16 @@ def test_every_packaged_recipe_resolves_and_dry_runs(capsys):
         "head_priced_1",
         "head_priced_3",
     ]
+
+
+def _changes_one_section(stage: Any, previous: Any, section: str, changes: dict[str, Any]) -> dict:
+    """Assert ``stage`` is ``previous`` with ``changes`` in one task section alone; its task."""
+    task, before = stage.config.env.task, previous.config.env.task
+    assert task[section] == {**before[section], **changes}
+    assert {**task, section: before[section]} == before
+    assert stage.config.env == dataclasses.replace(previous.config.env, task=task)
+    assert stage.config.ppo == previous.config.ppo and stage.carry == "all"
+    return task
 
 
 def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
@@ -224,37 +235,20 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     # The twenty-first takes the target back to 12 cm: stage 19's settings again.
     assert back.config == climbs.config and back.carry == "all"
     # The twenty-second: the paper's clearance sharpness (100) with an 18 cm target, nothing else.
-    reshaped = kernel_18.config.env.task
-    assert reshaped["rewards"] == {
-        **kept["rewards"],
-        "foot_clearance_target": 0.18,
-        "foot_clearance_sharpness": 100.0,
-    }
-    assert {**reshaped, "rewards": kept["rewards"]} == kept
-    assert kernel_18.config.env == dataclasses.replace(back.config.env, task=reshaped)
-    assert kernel_18.config.ppo == back.config.ppo and kernel_18.carry == "all"
+    reshaped = _changes_one_section(
+        kernel_18,
+        back,
+        "rewards",
+        {"foot_clearance_target": 0.18, "foot_clearance_sharpness": 100.0},
+    )
     # The twenty-third judges the walked distance by the robot's reach and gives the biped the
     # quad's lines again, nothing else.
-    judged = reach.config.env.task
     assert reshaped["terrain_curriculum"]["promote_share_biped"] == 0.4
-    assert judged["terrain_curriculum"] == {
-        **reshaped["terrain_curriculum"],
-        "judge_reach": True,
-        "promote_share_biped": 0.7,
-        "demote_share_biped": 0.5,
-    }
-    assert {**judged, "terrain_curriculum": reshaped["terrain_curriculum"]} == reshaped
-    assert reach.config.env == dataclasses.replace(kernel_18.config.env, task=judged)
-    assert reach.config.ppo == kernel_18.config.ppo and reach.carry == "all"
+    curriculum = "terrain_curriculum"
+    lines = {"judge_reach": True, "promote_share_biped": 0.7, "demote_share_biped": 0.5}
+    _changes_one_section(reach, kernel_18, curriculum, lines)
     # The twenty-fourth adds a minimum reach for a promotion, nothing else.
-    bounded = min_reach.config.env.task
-    assert bounded["terrain_curriculum"] == {
-        **judged["terrain_curriculum"],
-        "promote_min_reach": 4.0,
-    }
-    assert {**bounded, "terrain_curriculum": judged["terrain_curriculum"]} == judged
-    assert min_reach.config.env == dataclasses.replace(reach.config.env, task=bounded)
-    assert min_reach.config.ppo == reach.config.ppo and min_reach.carry == "all"
+    _changes_one_section(min_reach, reach, curriculum, {"promote_min_reach": 4.0})
     # --set applies on top of every stage.
     small = load_recipe("unified_flat", ["env.num_envs=8"])
     assert [s.config.env.num_envs for s in small.stages] == [8, 8, 8]
