@@ -77,11 +77,13 @@ def rollout(
     steps: int,
     seed: int,
     sampled: bool = False,
+    extra_toml: str = "",
 ) -> tuple[Rollout, tuple[str, ...]]:
     """Run ``steps`` policy steps (no env survives past its first episode in the counts).
 
     ``sampled`` draws each action from the policy's Gaussian, as the training rollouts (and
-    so the curriculum's promotions) do, instead of taking its mean.
+    so the curriculum's promotions) do, instead of taking its mean. ``extra_toml`` is appended
+    to the task overrides (tables the probe does not set itself, e.g. ``[rewards]``).
     """
     policy, dims, engine = load_policy(checkpoint)
     noise = ActionNoise(checkpoint, sampled, seed)
@@ -90,7 +92,8 @@ def rollout(
         seed=seed,
         # On the engine the checkpoint trained on (decision record 0026).
         task_overrides_toml=overrides(mode, vx, steps * DT + 1.0)
-        + f'[physics]\nengine = "{engine}"\n',
+        + f'[physics]\nengine = "{engine}"\n'
+        + extra_toml,
         terrain=terrain,
         terrain_level=level,
     )
@@ -151,12 +154,29 @@ def main() -> None:
     p.add_argument("--seed", type=int, default=5)
     p.add_argument("--terms", type=int, default=6, help="reward terms listed per level")
     p.add_argument("--sampled", action="store_true", help="actions drawn with the policy's std")
+    p.add_argument(
+        "--task-toml",
+        default="",
+        help="more task overrides, e.g. '[rewards]\\nfoot_clearance_weighting = \"swing_phase\"' "
+        "(\\n is a newline); rewards do not move the robot, so they can be priced both ways",
+    )
     a = p.parse_args()
+    extra = a.task_toml.replace("\\n", "\n")
     commanded = abs(a.vx) * a.steps * DT
     promote_m = max(PROMOTE * commanded, MIN_PROMOTE_M)
     with LocalServer() as server:
         flat, names = rollout(
-            server, a.checkpoint, "flat", 0, a.mode, a.vx, a.envs, a.steps, a.seed, a.sampled
+            server,
+            a.checkpoint,
+            "flat",
+            0,
+            a.mode,
+            a.vx,
+            a.envs,
+            a.steps,
+            a.seed,
+            a.sampled,
+            extra,
         )
         print(
             f"flat: walked {flat.distance.mean():+.2f} m of {commanded:.1f} commanded "
@@ -177,6 +197,7 @@ def main() -> None:
                 a.steps,
                 a.seed,
                 a.sampled,
+                extra,
             )
             walked = r.distance * (1.0 if a.vx >= 0 else -1.0)
             delta = r.terms - flat.terms

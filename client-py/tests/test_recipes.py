@@ -116,7 +116,9 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     (bounded, higher_swing, heading, kernel, mirror, quad_heading, friction, run_on, levels) = (
         load_recipe("unified_terrain").stages[9:18]
     )
-    (climbs, swing, back, kernel_18, reach, min_reach) = load_recipe("unified_terrain").stages[18:]
+    (climbs, swing, back, kernel_18, reach, min_reach, swing_phase) = load_recipe(
+        "unified_terrain"
+    ).stages[18:]
     assert terrain.config.policy == settle.config.policy
     assert (
         terrain.config.env.task["rewards"]["weights"]
@@ -249,6 +251,16 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     _changes_one_section(reach, kernel_18, curriculum, lines)
     # The twenty-fourth adds a minimum reach for a promotion, nothing else.
     _changes_one_section(min_reach, reach, curriculum, {"promote_min_reach": 4.0})
+    # The twenty-fifth prices the clearance over each foot's swing window with a 12 cm target,
+    # and gives the biped's clearance the quad's weight (3), nothing else.
+    weights = {**min_reach.config.env.task["rewards"]["weights"], "biped_foot_clearance": 3.0}
+    assert weights["quad_foot_clearance"] == 3.0
+    changes = {
+        "foot_clearance_weighting": "swing_phase",
+        "foot_clearance_target": 0.12,
+        "weights": weights,
+    }
+    _changes_one_section(swing_phase, min_reach, "rewards", changes)
     # --set applies on top of every stage.
     small = load_recipe("unified_flat", ["env.num_envs=8"])
     assert [s.config.env.num_envs for s in small.stages] == [8, 8, 8]

@@ -287,6 +287,19 @@ impl FrictionCombine {
     }
 }
 
+/// What weighs a foot's clearance error (h - p_des)^2 (decision record 0039).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ClearanceWeighting {
+    /// The foot's horizontal speed |v_xy| (Eq. 4): a swing that is low but quick costs little,
+    /// because exp(-k error) averaged over a swing pays most when the error comes in bursts.
+    #[default]
+    FootSpeed,
+    /// The gait clock's expected swing indicator of the foot (the periodic gait reward's force
+    /// weight): the foot is asked to be up through its whole swing window, at any speed.
+    SwingPhase,
+}
+
 /// Which legs carry the biped stance.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -319,6 +332,9 @@ pub struct RewardParams {
     /// k of the foot clearance reward exp(-k error). Default 100 (Eq. 4 and 6); a steeper
     /// kernel makes a low swing cost more (decision record 0025).
     pub foot_clearance_sharpness: f32,
+    /// What weighs each foot's clearance error: its horizontal speed (Eq. 4, the default) or
+    /// its expected swing indicator from the gait clock (decision record 0039).
+    pub foot_clearance_weighting: ClearanceWeighting,
     /// k of `quad_tracking_lin_vel`, exp(-k |v*_xy - v_xy|^2). Default 4 (the paper's).
     pub quad_tracking_lin_vel_sharpness: f32,
     /// k of `biped_tracking_lin_vel`. Default 4; a steeper kernel prices a shortfall the default
@@ -400,6 +416,7 @@ impl Default for RewardParams {
             foot_clearance_target: 0.08,
             foot_clearance_radius: 0.02,
             foot_clearance_sharpness: 100.0,
+            foot_clearance_weighting: ClearanceWeighting::FootSpeed,
             quad_tracking_lin_vel_sharpness: 4.0,
             biped_tracking_lin_vel_sharpness: 4.0,
             sideways_reach_target: 0.1,

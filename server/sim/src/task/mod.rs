@@ -11,9 +11,9 @@ mod reward_terms;
 mod rewards;
 
 pub use config::{
-    BipedStance, CommandParams, CommandRanges, DEFAULT_TASK_TOML, EnvParams, FrictionCombine,
-    GaitParams, InitParams, ModeParams, NoiseParams, RandomizationParams, Range, RewardParams,
-    RewardWeights, TaskConfig, UprightCurriculum,
+    BipedStance, ClearanceWeighting, CommandParams, CommandRanges, DEFAULT_TASK_TOML, EnvParams,
+    FrictionCombine, GaitParams, InitParams, ModeParams, NoiseParams, RandomizationParams, Range,
+    RewardParams, RewardWeights, TaskConfig, UprightCurriculum,
 };
 pub use context::TaskContext;
 pub use frames::{euler_pitch, heading_direction, projected_gravity, to_heading_frame};

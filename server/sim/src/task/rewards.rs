@@ -3,7 +3,7 @@
 
 use rapier3d::math::{Vec2, Vec3};
 
-use super::config::TaskConfig;
+use super::config::{ClearanceWeighting, TaskConfig};
 use super::gait::GaitCoefficients;
 use super::reward_terms::{Indicators, RewardTerm};
 use crate::robot::{NUM_FEET, NUM_JOINTS};
@@ -203,17 +203,30 @@ pub fn reward_periodic_gait(violation: f32) -> f32 {
     (-2.0 * violation).exp()
 }
 
-/// Clearance error sum over `feet` of (h_i - target)^2 |v_xy,i| (Eq. 4, heights already measured
-/// from the highest terrain around each foot).
+/// Clearance error sum over `feet` of (h_i - target)^2 w_i (Eq. 4 with w_i = |v_xy,i|; heights
+/// already measured from the highest terrain around each foot). `weight` is what
+/// [`ClearanceWeighting`] picks: the feet's horizontal speeds or their expected swing indicators.
 pub fn foot_clearance_error(
     height: &[f32; NUM_FEET],
-    speed_xy: &[f32; NUM_FEET],
+    weight: &[f32; NUM_FEET],
     target: f32,
     feet: &[usize],
 ) -> f32 {
     feet.iter()
-        .map(|&f| (height[f] - target).powi(2) * speed_xy[f])
+        .map(|&f| (height[f] - target).powi(2) * weight[f])
         .sum()
+}
+
+/// Each foot's weight on its clearance error under `weighting`, for the gait of the term's mode.
+pub fn clearance_weights(
+    weighting: ClearanceWeighting,
+    speed_xy: &[f32; NUM_FEET],
+    gait: &[GaitCoefficients; NUM_FEET],
+) -> [f32; NUM_FEET] {
+    match weighting {
+        ClearanceWeighting::FootSpeed => *speed_xy,
+        ClearanceWeighting::SwingPhase => gait.map(|c| c.force),
+    }
 }
 
 /// exp(-sharpness error): the paper's sharpness is 100 (Eq. 4 and 6).
@@ -333,7 +346,7 @@ pub fn raw_terms(
             RewardTerm::QuadFootClearance => reward_foot_clearance(
                 foot_clearance_error(
                     &x.foot_clearance_height,
-                    &x.foot_speed_xy,
+                    &clearance_weights(r.foot_clearance_weighting, &x.foot_speed_xy, &x.gait_quad),
                     r.foot_clearance_target,
                     &all_feet,
                 ),
@@ -354,7 +367,7 @@ pub fn raw_terms(
             RewardTerm::BipedFootClearance => reward_foot_clearance(
                 foot_clearance_error(
                     &x.foot_clearance_height,
-                    &x.foot_speed_xy,
+                    &clearance_weights(r.foot_clearance_weighting, &x.foot_speed_xy, &x.gait_biped),
                     r.foot_clearance_target,
                     &k.stance_feet,
                 ),

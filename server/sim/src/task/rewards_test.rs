@@ -160,6 +160,111 @@ fn gait_and_clearance() {
 }
 
 #[test]
+fn clearance_weighted_by_the_swing_phase_prices_a_low_foot_at_any_speed() {
+    // A trot at phase 0.2: FL and RR are mid-swing (swing is [0, 0.4)), FR and RL mid-stance.
+    let cdf = VonMisesCdf::new(20.0);
+    let gait: [GaitCoefficients; 4] =
+        std::array::from_fn(|f| gait_coefficients(&cdf, 0.2 + [0.0, 0.5, 0.5, 0.0][f], 0.4));
+    let swing = clearance_weights(ClearanceWeighting::SwingPhase, &[0.0; 4], &gait);
+    assert!(swing[0] > 0.999 && swing[3] > 0.999, "{swing:?}");
+    assert!(swing[1] < 1e-3 && swing[2] < 1e-3, "{swing:?}");
+    let speed = [0.7, 0.0, 0.1, 0.3];
+    assert_eq!(
+        clearance_weights(ClearanceWeighting::FootSpeed, &speed, &gait),
+        speed
+    );
+    // FL swinging 3 cm high against a 12 cm target: (0.09)^2 = 0.0081 whatever its speed, and
+    // exp(-100 * 0.0081) = 0.4449. Eq. 4 charges it by speed: nothing when the foot stands
+    // still (a robot stalled at a riser), 0.0081 * 3 at a quick 3 m/s.
+    let low = [0.03, 0.022, 0.022, 0.12];
+    for v in [0.0, 1.0, 3.0] {
+        let w = clearance_weights(ClearanceWeighting::SwingPhase, &[v, 0.0, 0.0, v], &gait);
+        let e = foot_clearance_error(&low, &w, 0.12, &[0, 1, 2, 3]);
+        close(
+            e,
+            0.0081 * swing[0] + (0.098f32).powi(2) * (swing[1] + swing[2]),
+        );
+        assert!((reward_foot_clearance(e, 100.0) - 0.4449).abs() < 2e-3);
+    }
+    let paper = |v: f32| {
+        let w = clearance_weights(ClearanceWeighting::FootSpeed, &[v, 0.0, 0.0, v], &gait);
+        reward_foot_clearance(foot_clearance_error(&low, &w, 0.12, &[0, 1, 2, 3]), 100.0)
+    };
+    close(paper(0.0), 1.0);
+    close(paper(3.0), (-2.43f32).exp());
+    // The stance feet, at rest on the ground, cost nothing under either weighting.
+    let w = clearance_weights(ClearanceWeighting::SwingPhase, &[0.0; 4], &gait);
+    assert!(foot_clearance_error(&low, &w, 0.12, &[1, 2]) < 1e-4);
+}
+
+/// A robot at rest: every input zero, the gait weights of a foot in stance.
+fn inputs() -> RewardInputs {
+    let stance = GaitCoefficients {
+        force: 0.0,
+        speed: 1.0,
+    };
+    RewardInputs {
+        terminated: false,
+        penalised_contacts: 0,
+        head_contact: false,
+        base_angvel_b: Vec3::ZERO,
+        base_linvel_b: Vec3::ZERO,
+        heading_linvel: Vec2::ZERO,
+        yaw_rate: 0.0,
+        command: [0.0; 3],
+        base_height: 0.3,
+        terrain_normal_b: Vec3::Z,
+        pitch: 0.0,
+        roll_proxy: 0.0,
+        q: zeros(),
+        qd: zeros(),
+        qd_prev: zeros(),
+        actions: [zeros(); 3],
+        torques: zeros(),
+        foot_force: [0.0; 4],
+        foot_speed: [0.0; 4],
+        foot_speed_xy: [0.0; 4],
+        foot_clearance_height: [0.0; 4],
+        gait_quad: [stance; 4],
+        gait_biped: [stance; 4],
+    }
+}
+
+fn constants() -> RewardConstants {
+    RewardConstants {
+        default_q: zeros(),
+        soft_lower: [-1.0; NUM_JOINTS],
+        soft_upper: [1.0; NUM_JOINTS],
+        hips: [0, 3, 6, 9],
+        raised_left: [6, 7, 8],
+        raised_right: [9, 10, 11],
+        stance_feet: [0, 1],
+        raised_feet: [2, 3],
+        stance_legs: [[0, 1, 2], [3, 4, 5]],
+        stance_leg_geometry: [[Vec3::ZERO; 3]; 2],
+    }
+}
+
+#[test]
+fn the_clearance_weighting_is_chosen_by_the_config() {
+    let mut cfg = TaskConfig::default();
+    cfg.rewards.foot_clearance_target = 0.12;
+    let k = constants();
+    let mut x = inputs();
+    let cdf = VonMisesCdf::new(20.0);
+    x.gait_quad =
+        std::array::from_fn(|f| gait_coefficients(&cdf, 0.2 + [0.0, 0.5, 0.5, 0.0][f], 0.4));
+    x.foot_clearance_height = [0.03, 0.022, 0.022, 0.03];
+    x.foot_speed_xy = [0.0; 4];
+    let quad = RewardTerm::QuadFootClearance as usize;
+    // Standing still: Eq. 4 sees no error; the swing phase sees two feet 9 cm short.
+    close(raw_terms(&x, &k, &cfg)[quad], 1.0);
+    cfg.rewards.foot_clearance_weighting = ClearanceWeighting::SwingPhase;
+    let paid = raw_terms(&x, &k, &cfg)[quad];
+    assert!((paid - (-1.62f32).exp()).abs() < 2e-3, "{paid}");
+}
+
+#[test]
 fn biped_terms() {
     let mut q = zeros();
     // RL (6..9) and RR (9..12): hips mirror, so 0.1 / -0.1 is symmetric.
