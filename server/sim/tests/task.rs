@@ -322,3 +322,64 @@ fn the_biped_velocity_kernel_takes_its_sharpness_from_the_config() {
         );
     }
 }
+
+/// `rewards.foot_clearance_weighting` reaches the env's clearance term (decision record 0039):
+/// quad robots standing still on flat ground are paid the whole term under Eq. 4, their feet not
+/// moving, and under the swing window exp(-100 sum_f (h_f - 0.12)^2 w_f), w_f each foot's swing
+/// weight at the env's gait phase, as a stalled robot would be charged.
+#[test]
+fn the_swing_window_charges_a_standing_robots_low_feet() {
+    use unigait_sim::task::{VonMisesCdf, gait_coefficients};
+    let n = 2;
+    let zeros = vec![0.0; n * NUM_JOINTS];
+    let term = RewardTerm::QuadFootClearance;
+    let paid = |weighting: &str| {
+        let cfg = calm_config(&format!(
+            "[modes]\nbiped_probability = 0.0\n[rewards]\nfoot_clearance_target = 0.12\n\
+             foot_clearance_weighting = \"{weighting}\"\n"
+        ));
+        let mut env = batch(cfg.clone(), n, 0, 1);
+        let mut out = env.step(&zeros).expect("step").clone();
+        // Settled on the default pose, at a phase where both trot pairs' weights differ.
+        for _ in 0..60 {
+            out = env.step(&zeros).expect("step").clone();
+        }
+        let cdf = VonMisesCdf::new(cfg.gait.kappa);
+        (0..n)
+            .map(|i| {
+                let s = env.robot_state(i);
+                let phase = env.env_state(i).gait_phase(&cfg);
+                let error: f32 = (0..4)
+                    .map(|f| {
+                        let w = gait_coefficients(
+                            &cdf,
+                            phase + cfg.gait.offsets_quad[f],
+                            cfg.gait.swing_ratio,
+                        )
+                        .force;
+                        let h = s.foot_pos[f].z;
+                        assert!((0.015..0.03).contains(&h), "a standing foot's centre: {h}");
+                        (h - 0.12).powi(2) * w
+                    })
+                    .sum();
+                let raw = out.reward_terms[i * RewardTerm::COUNT + term as usize]
+                    / cfg.scaled_weight(term);
+                (raw, (-100.0 * error).exp(), error)
+            })
+            .collect::<Vec<_>>()
+    };
+    for (raw, _, _) in paid("foot_speed") {
+        assert!(
+            raw > 0.95,
+            "feet all but still cost next to nothing under Eq. 4: {raw}"
+        );
+    }
+    for (raw, want, error) in paid("swing_phase") {
+        assert!(
+            error > 0.005,
+            "a trot always has feet in their swing window: {error}"
+        );
+        assert!((raw - want).abs() < 1e-4, "{raw} vs {want}");
+        assert!(raw < 0.6, "feet 10 cm short through their swing: {raw}");
+    }
+}
