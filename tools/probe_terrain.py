@@ -165,31 +165,12 @@ def main() -> None:
     commanded = abs(a.vx) * a.steps * DT
     promote_m = max(PROMOTE * commanded, MIN_PROMOTE_M)
     with LocalServer() as server:
-        flat, names = rollout(
-            server,
-            a.checkpoint,
-            "flat",
-            0,
-            a.mode,
-            a.vx,
-            a.envs,
-            a.steps,
-            a.seed,
-            a.sampled,
-            extra,
-        )
-        print(
-            f"flat: walked {flat.distance.mean():+.2f} m of {commanded:.1f} commanded "
-            f"(estimated {flat.estimated.mean():+.2f}), "
-            f"fell {flat.fell.float().mean():.2f}, feet's 90th percentile height "
-            + "/".join(f"{h:.3f}" for h in flat.apex.tolist()),
-            flush=True,
-        )
-        for level in a.levels:
-            r, _ = rollout(
+
+        def run(terrain: str, level: int) -> tuple[Rollout, tuple[str, ...]]:
+            return rollout(
                 server,
                 a.checkpoint,
-                a.terrain,
+                terrain,
                 level,
                 a.mode,
                 a.vx,
@@ -199,6 +180,17 @@ def main() -> None:
                 a.sampled,
                 extra,
             )
+
+        flat, names = run("flat", 0)
+        print(
+            f"flat: walked {flat.distance.mean():+.2f} m of {commanded:.1f} commanded "
+            f"(estimated {flat.estimated.mean():+.2f}), "
+            f"fell {flat.fell.float().mean():.2f}, feet's 90th percentile height "
+            + "/".join(f"{h:.3f}" for h in flat.apex.tolist()),
+            flush=True,
+        )
+        for level in a.levels:
+            r, _ = run(a.terrain, level)
             walked = r.distance * (1.0 if a.vx >= 0 else -1.0)
             delta = r.terms - flat.terms
             worst = delta.abs().argsort(descending=True)[: a.terms]
