@@ -116,7 +116,7 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     (bounded, higher_swing, heading, kernel, mirror, quad_heading, friction, run_on, levels) = (
         load_recipe("unified_terrain").stages[9:18]
     )
-    (climbs, swing, back, kernel_18, reach, min_reach, swing_phase, reach_3) = load_recipe(
+    (climbs, swing, back, kernel_18, reach, min_reach, swing_phase, reach_3, clock) = load_recipe(
         "unified_terrain"
     ).stages[18:]
     assert terrain.config.policy == settle.config.policy
@@ -263,6 +263,9 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     _changes_one_section(swing_phase, min_reach, "rewards", changes)
     # The twenty-sixth asks a promotion for 3 m of reach rather than 4, nothing else.
     _changes_one_section(reach_3, swing_phase, curriculum, {"promote_min_reach": 3.0})
+    # The twenty-seventh triples the biped's periodic gait weight, nothing else.
+    weights = {**reach_3.config.env.task["rewards"]["weights"], "biped_periodic_gait": 6.0}
+    _changes_one_section(clock, reach_3, "rewards", {"weights": weights})
     # --set applies on top of every stage.
     small = load_recipe("unified_flat", ["env.num_envs=8"])
     assert [s.config.env.num_envs for s in small.stages] == [8, 8, 8]
