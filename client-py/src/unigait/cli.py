@@ -478,6 +478,17 @@ def _info(args: argparse.Namespace) -> int:
     return 0
 
 
+def _checks(args: argparse.Namespace) -> int:
+    from unigait.milestone_log import MilestoneLogError, milestone_tables, read_milestone_log
+
+    try:
+        print(milestone_tables(read_milestone_log(Path(args.log_dir))), end="")
+    except MilestoneLogError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of every sub-command."""
     p = argparse.ArgumentParser(prog="unigait", description=__doc__)
@@ -705,6 +716,12 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--server", action="append", metavar="HOST:PORT")
     _add_connection_flags(i)
     i.set_defaults(func=_info)
+
+    k = sub.add_parser(
+        "checks", help="a recipe run's milestone checks, one Markdown table per milestone"
+    )
+    k.add_argument("log_dir", help="a run's --log-dir, or one stage's folder in it")
+    k.set_defaults(func=_checks)
 
     mujoco_cli.register(sub)  # sim2sim, crosscheck, mujoco-bench: MuJoCo imported on use
     return p
