@@ -9,6 +9,9 @@ policy trained with). After a settling second the probe reports, per mode:
 - the sole's height mid-swing: over the middle half of the clock's swing window of that foot
   (local phase 0.1-0.3 of the default 0.4 swing), where the swing-phase clearance term prices
   it (decision record 0039);
+- the first foot's (FL's) contact share and sole height by its clock phase, in tenths of the
+  cycle (the swing window is the first ``gait.swing_ratio`` of it): a foot on its clock is in the
+  air through its swing window and down through its stance, one off it the same throughout;
 - the speed along the heading, falls, and every reward term's per-step mean.
 
 ``--lift DELTA`` adds DELTA to the calf action (``--joint``) of each stance-mode foot over its
@@ -39,6 +42,7 @@ from unigait.server_process import LocalServer
 DT = 0.02
 SETTLE_STEPS = 50
 MID_SWING = (0.1, 0.3)  # local phase, the middle half of the default 0.4 swing window
+PHASE_BINS = 10
 
 
 def merged(base: dict[str, Any], top: dict[str, Any]) -> dict[str, Any]:
@@ -89,6 +93,9 @@ class Probe:
     speed_mps: float
     falls: int
     terms: dict[str, float]
+    #: FL's contact share and mean sole height (m) per tenth of its clock cycle.
+    contact_by_phase: list[float]
+    sole_by_phase: list[float]
 
 
 def run(server: LocalServer, args: argparse.Namespace, lift: float) -> Probe:
@@ -119,6 +126,7 @@ def run(server: LocalServer, args: argparse.Namespace, lift: float) -> Probe:
     raise_by = torch.zeros(n, 4)
     fell = torch.zeros(n, dtype=torch.bool)
     onsets, foot_steps, mid, speeds = 0.0, 0.0, [], []
+    bins = torch.zeros(3, PHASE_BINS)  # samples, contacts, sole heights of FL per phase tenth
     in_contact, term_sum, samples = torch.zeros(4), torch.zeros(len(spec.reward_terms)), 0
     for t in range(args.steps):
         with torch.no_grad():
@@ -138,6 +146,10 @@ def run(server: LocalServer, args: argparse.Namespace, lift: float) -> Probe:
             onsets += float((now & ~was)[alive][:, feet].sum())
             foot_steps += float(alive.sum()) * len(feet)
             in_contact += now[alive].float().sum(0)
+            tenth = (phase[alive][:, 0] * PHASE_BINS).long().clamp(0, PHASE_BINS - 1)
+            bins[0].index_add_(0, tenth, torch.ones(len(tenth)))
+            bins[1].index_add_(0, tenth, now[alive][:, 0].float())
+            bins[2].index_add_(0, tenth, out.labels[alive][:, sole][:, 0])
             heights = out.labels[alive][:, sole][:, feet]
             window = (phase[alive][:, feet] > MID_SWING[0]) & (phase[alive][:, feet] < MID_SWING[1])
             mid.append(heights[window])
@@ -152,6 +164,8 @@ def run(server: LocalServer, args: argparse.Namespace, lift: float) -> Probe:
         contact_share=(in_contact[feet] / max(samples, 1)).tolist(),
         mid_swing_sole_m=float(swing.mean()),
         mid_swing_sole_p90_m=float(swing.quantile(0.9)),
+        contact_by_phase=(bins[1] / bins[0].clamp(min=1)).tolist(),
+        sole_by_phase=(bins[2] / bins[0].clamp(min=1)).tolist(),
         speed_mps=float(torch.cat(speeds).mean()),
         falls=int(fell.sum()),
         terms={
@@ -187,6 +201,12 @@ def main() -> None:
                 + f", mid-swing sole {100 * r.mid_swing_sole_m:.1f} cm (p90 "
                 f"{100 * r.mid_swing_sole_p90_m:.1f}), speed {r.speed_mps:.3f} m/s, falls "
                 f"{r.falls}, reward {sum(r.terms.values()):+.4f} a step"
+            )
+            print(
+                "   FL by clock phase (tenths): contact "
+                + " ".join(f"{c:.2f}" for c in r.contact_by_phase)
+                + " | sole cm "
+                + " ".join(f"{100 * h:.1f}" for h in r.sole_by_phase)
             )
             base = first or r
             shown = sorted(r.terms, key=lambda k: -abs(r.terms[k]))
