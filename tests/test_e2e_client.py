@@ -1,6 +1,7 @@
 """The Python client against the real server: round trip, spec, autoreset, errors, sharding."""
 
 import dataclasses
+import json
 import time
 from pathlib import Path
 
@@ -153,6 +154,30 @@ def test_a_recording_follows_the_env_asked_for(server):
         assert err.value.code_name == "INVALID_ARGUMENT" and "record_env" in err.value.details
         # The refused request harmed nobody: the server still evaluates.
         assert client.evaluate(policy, "transition_quad_to_biped", num_envs=1, seed=0).metrics
+
+
+def test_a_traversal_records_the_trial_asked_for_in_its_own_case(server):
+    # Trials are numbered as the report lists them: 2 forward, then 2 backward; trial 3 is the
+    # backward case's second env, and the recording holds that case alone.
+    policy = (Path(__file__).parent / "data" / "test_policy.onnx").read_bytes()
+    with Client(server) as client:
+        result = client.evaluate(
+            policy, "stairs_up_quad", num_envs=4, seed=0, record=True, record_env=3
+        )
+        cases = [o["case"] for o in json.loads(result.report_json)["traversal"]["outcomes"]]
+        assert cases == ["forward", "forward", "backward", "backward"]
+        rrd = result.recording_rrd
+        assert f"stairs_up_quad (unified), {cases[3]}".encode() in rrd
+        assert f"stairs_up_quad (unified), {cases[0]}".encode() not in rrd
+        assert b"3D: env 1 (followed)" in rrd and b"3D: env 0 (followed)" not in rrd
+        with pytest.raises(UnigaitError) as err:
+            client.evaluate(policy, "stairs_up_quad", num_envs=4, seed=0, record=True, record_env=4)
+        assert err.value.code_name == "INVALID_ARGUMENT" and "record_env" in err.value.details
+        # Table VI's trials are counted as its columns run: 4 in each of 6, so 24 is beyond.
+        with pytest.raises(UnigaitError) as err:
+            client.evaluate(policy, "table_vi", num_envs=4, seed=0, record=True, record_env=24)
+        assert err.value.code_name == "INVALID_ARGUMENT"
+        assert "record_env 24 is not among the 24 trials" in err.value.details
 
 
 def test_a_paused_client_steps_on_after_the_stream_idle_timeout(start_server):

@@ -4,7 +4,7 @@
 //! scenario list: the Table VI columns `stairs_up_quad` ... `stairs_down_biped`, `table_vi`,
 //! `transition_biped_to_quad`, `transition_quad_to_biped`, `tracking_quad`, `tracking_biped`,
 //! `flat_quad`, `flat_biped`) and answers with metrics, a JSON report and, for `record`, a
-//! rerun recording of one env (`--record-env`, default 0): written to a file (`--out`), sent
+//! rerun recording of one trial (`--record-env`, default 0): written to a file (`--out`), sent
 //! to a running viewer (`--connect`), or served from this process for a viewer to join
 //! (`--serve`, until Ctrl-C or `--serve-for`).
 
@@ -112,8 +112,9 @@ pub struct RecordArgs {
         value_parser = parse_memory_limit
     )]
     pub serve_memory_limit: Option<MemoryLimit>,
-    /// The env the recording follows (camera, plots, gait diagram); the next lowest indices
-    /// are the other tabs of the 3D view.
+    /// The trial the recording follows (camera, plots, gait diagram), numbered across the
+    /// scenario's cases as the report lists them (a traversal's forward trials, then its
+    /// backward ones); the lowest indices of its case are the other tabs of the 3D view.
     #[arg(long, value_name = "K", default_value_t = 0)]
     pub record_env: u32,
 }

@@ -638,10 +638,14 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--seed", type=int, default=0)
     v.add_argument("--biped-policy", help="second ONNX policy for the two-policy baseline")
     v.add_argument(
-        "--record", metavar="OUT.rrd", help="write a rerun recording (env 0 unless --record-env)"
+        "--record", metavar="OUT.rrd", help="write a rerun recording (trial 0 unless --record-env)"
     )
     v.add_argument(
-        "--record-env", type=int, metavar="K", help="the env the recording follows (default 0)"
+        "--record-env",
+        type=int,
+        metavar="K",
+        help="the trial the recording follows (default 0), numbered across the scenario's cases "
+        "as the report lists them: a traversal's forward trials, then its backward ones",
     )
     v.add_argument("--report", metavar="OUT.json", help="write the full JSON report")
     v.add_argument(

@@ -1,6 +1,6 @@
 //! The Evaluate RPC: roll a client's ONNX policy out on the server's own envs over a named
 //! scenario and return the metrics, the JSON report and, on request, a rerun recording that
-//! follows one env (`record_env`, default 0).
+//! follows one trial (`record_env`, default 0, numbered across the scenario's cases).
 //!
 //! [`handle`] is blocking (it builds envs and steps them): call it from the handler on a
 //! blocking thread, e.g. `blocking(move || crate::evaluate::handle(request, &ctx)).await`.
@@ -179,15 +179,37 @@ fn trained_engine(policy: &[u8], biped: &[u8]) -> Result<Option<EngineKind>, Ser
     Ok(found.map(|(e, _)| e))
 }
 
-/// Records the first case the evaluation runs, following the asked env (`record_env`).
-struct FirstCaseRecorder {
+/// Records the case holding the asked trial (`record_env`), following that trial's env.
+///
+/// Trials are numbered across the cases in the order they run, which is the order the report
+/// lists their outcomes: with a traversal's 10 forward and 10 backward trials, trial 12 is the
+/// third backward one. The recorder opens when its case begins.
+struct TrialRecorder {
+    /// The recording's options until its case begins (`env_index` set then).
+    pending: Option<RecordOptions>,
+    /// Trials still to pass before the followed one.
+    skip: usize,
+    /// Trials of the cases begun so far.
+    seen: usize,
     recorder: Option<Recorder>,
     active: bool,
     done: bool,
     error: Option<RecordError>,
 }
 
-impl FirstCaseRecorder {
+impl TrialRecorder {
+    fn new(options: Option<RecordOptions>, trial: usize) -> Self {
+        Self {
+            pending: options,
+            skip: trial,
+            seen: 0,
+            recorder: None,
+            active: false,
+            done: false,
+            error: None,
+        }
+    }
+
     fn keep(&mut self, r: Result<(), RecordError>) {
         if let Err(e) = r {
             self.error.get_or_insert(e);
@@ -195,17 +217,36 @@ impl FirstCaseRecorder {
             self.done = true;
         }
     }
+
+    /// Whether a recording was asked for and its trial never ran.
+    fn missed(&self) -> bool {
+        self.pending.is_some()
+    }
 }
 
-impl StepObserver for FirstCaseRecorder {
-    fn begin_case(&mut self, _case: usize, _name: &str, env: &VecEnv) {
-        if self.done {
+impl StepObserver for TrialRecorder {
+    fn begin_case(&mut self, _case: usize, name: &str, env: &VecEnv) {
+        self.seen += env.num_envs();
+        if self.done || self.pending.is_none() {
             return;
         }
-        if let Some(r) = self.recorder.as_mut() {
-            self.active = true;
-            let result = r.begin(env);
-            self.keep(result);
+        if self.skip >= env.num_envs() {
+            self.skip -= env.num_envs();
+            return;
+        }
+        let Some(mut options) = self.pending.take() else {
+            return;
+        };
+        options.env_index = self.skip;
+        options.name = format!("{}, {name}", options.name);
+        match Recorder::in_memory(options) {
+            Ok(mut r) => {
+                self.active = true;
+                let result = r.begin(env);
+                self.recorder = Some(r);
+                self.keep(result);
+            }
+            Err(e) => self.keep(Err(e)),
         }
     }
 
@@ -292,29 +333,21 @@ pub fn handle(
             )));
         }
     }
-    let mut observer = FirstCaseRecorder {
-        recorder: if request.record {
-            let options = RecordOptions {
-                env_index: record_env,
-                name: format!("{} ({})", request.scenario, policies.kind()),
-                ..RecordOptions::default()
-            };
-            Some(Recorder::in_memory(options).map_err(|e| ServiceError::Internal(e.to_string()))?)
-        } else {
-            None
-        },
-        active: false,
-        done: false,
-        error: None,
-    };
+    let recording = request.record.then(|| RecordOptions {
+        name: format!("{} ({})", request.scenario, policies.kind()),
+        ..RecordOptions::default()
+    });
+    let mut observer = TrialRecorder::new(recording, record_env);
     let report = evaluate(&request.scenario, &policies, &options, &mut observer)?;
-    match observer.error.take() {
-        // A Table VI case smaller than the env asked for (the other scenarios are checked above).
-        Some(e @ RecordError::EnvIndex { .. }) => {
-            return Err(ServiceError::InvalidArgument(format!("record_env: {e}")));
-        }
-        Some(e) => return Err(ServiceError::Internal(format!("recording failed: {e}"))),
-        None => {}
+    if let Some(e) = observer.error.take() {
+        return Err(ServiceError::Internal(format!("recording failed: {e}")));
+    }
+    if observer.missed() {
+        // Table VI's trials are counted as it runs them (the other scenarios are checked above).
+        return Err(ServiceError::InvalidArgument(format!(
+            "record_env {record_env} is not among the {} trials this evaluation ran",
+            observer.seen
+        )));
     }
     let recording_rrd = match observer.recorder.take() {
         Some(r) => r

@@ -152,8 +152,10 @@ class Client(ClosesOnExit):
             num_envs: Trials (0: the scenario's default).
             seed: Seed of the rollout.
             record: Ask for a rerun recording.
-            record_env: The env the recording follows (default 0; ``INVALID_ARGUMENT`` if the
-                scenario runs fewer envs).
+            record_env: The trial the recording follows (default 0), numbered across the
+                scenario's cases in the order the report lists their outcomes (a traversal's
+                forward trials, then its backward ones); ``INVALID_ARGUMENT`` if the scenario
+                runs fewer.
             biped_policy_onnx: Optional second policy for the two-policy baseline.
             task_overrides_toml: TOML overriding the server's task config for this evaluation
                 (e.g. ``'physics.engine = "articulated"'``); the scenario sets the rest.
