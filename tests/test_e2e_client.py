@@ -33,7 +33,7 @@ def test_round_trip_and_spec_slices(server):
             assert spec.obs.field_names == OBS_FIELDS
             assert spec.labels.field_names == LABEL_FIELDS
             assert spec.obs.slice("clock") == slice(47, 51)
-            assert len(spec.reward_terms) == 27 and "biped_sideways_reach" in spec.reward_terms
+            assert len(spec.reward_terms) == 28 and spec.reward_terms[-1] == "biped_feet_air_time"
             assert spec.num_actions == 12 and spec.max_episode_steps == 900
             assert spec.policy_dt == pytest.approx(0.02)
             assert s.initial.obs.shape == (8, 53)
@@ -44,7 +44,7 @@ def test_round_trip_and_spec_slices(server):
                 r = s.step(rng.uniform(-1, 1, (8, 12)).astype(np.float32))
                 assert r.obs.shape == (8, 53) and r.labels.shape == (8, 14)
                 assert r.privileged.shape == (8, 10) and r.reward.shape == (8,)
-                assert r.reward_terms is not None and r.reward_terms.shape == (8, 27)
+                assert r.reward_terms is not None and r.reward_terms.shape == (8, 28)
                 assert np.isfinite(r.obs).all()
             # The observed one-hot mode agrees with the mode tensor (1 biped, 2 quad).
             one_hot = r.obs[:, spec.obs.slice("mode")]

@@ -29,7 +29,7 @@ REWARD_TERMS = [
     "quad_periodic_gait", "quad_foot_clearance", "biped_tracking_lin_vel",
     "biped_tracking_ang_vel", "biped_base_height", "biped_base_angle", "biped_periodic_gait",
     "biped_foot_clearance", "biped_rear_legs", "biped_upright_contacts", "biped_body_contact",
-    "biped_sideways_reach",
+    "biped_sideways_reach", "biped_feet_air_time",
 ]  # fmt: skip
 
 

@@ -109,7 +109,8 @@ class StepResult:
         labels: f32 [N, 14] e_t estimator labels.
         privileged: f32 [N, 10] s_t domain-randomisation values.
         reward: f32 [N] total reward.
-        reward_terms: f32 [N, 26] weighted reward per term, or None when not asked for.
+        reward_terms: f32 [N, T] weighted reward per term (T = len(spec.reward_terms)), or None
+            when not asked for.
         terminated: bool [N], episode ended by a trunk contact (or a physics blow-up).
         truncated: bool [N], episode ended by time-out.
         final_env_ids: int64 [K] envs that ended this step.

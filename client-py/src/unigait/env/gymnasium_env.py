@@ -2,10 +2,11 @@
 
 Observations are o_t, f32 [N, 53]; actions f32 [N, 12] (joint target = default + 0.25 action,
 clipped to +-100 by the server). ``info`` carries ``labels`` [N, 14], ``privileged`` [N, 10],
-``reward_terms`` [N, 26], ``mode`` [N] and ``terrain_level`` [N]; for envs that ended in the step,
-``info["final_obs"]`` (object array, an f32 [53] row where ``info["_final_obs"]`` is set) and
-``info["final_info"]`` (``labels``, ``privileged``, ``episode_length``) hold the last values of
-the ended episode, as Gymnasium's same-step autoreset prescribes.
+``reward_terms`` [N, T] (the spec's T terms), ``mode`` [N] and ``terrain_level`` [N]; for envs
+that ended in the step, ``info["final_obs"]`` (object array, an f32 [53] row where
+``info["_final_obs"]`` is set) and ``info["final_info"]`` (``labels``, ``privileged``,
+``episode_length``) hold the last values of the ended episode, as Gymnasium's same-step
+autoreset prescribes.
 """
 
 from __future__ import annotations

@@ -26,7 +26,7 @@ class TorchStep:
         labels: f32 [N, 14] e_t.
         privileged: f32 [N, 10] s_t.
         reward: f32 [N] total reward.
-        reward_terms: f32 [N, 26] weighted reward per term, or None.
+        reward_terms: f32 [N, T] weighted reward per term (T = len(spec.reward_terms)), or None.
         terminated: bool [N] ended by a trunk contact (not bootstrapped).
         truncated: bool [N] ended by time-out (bootstrapped from the final critic input).
         final_env_ids: int64 [K] envs that ended.

@@ -4,7 +4,7 @@ use rand::RngExt;
 use rand_chacha::ChaCha8Rng;
 
 use crate::robot::NUM_JOINTS;
-use crate::task::{CommandRanges, Randomization, TaskConfig, TaskMode, uniform};
+use crate::task::{CommandRanges, FeetAirTime, Randomization, TaskConfig, TaskMode, uniform};
 use crate::terrain::EpisodeDistance;
 
 use super::EnvId;
@@ -26,6 +26,8 @@ pub struct EnvState {
     pub actions: [[f32; NUM_JOINTS]; 3],
     /// Joint speeds at the previous policy step.
     pub last_qd: [f32; NUM_JOINTS],
+    /// Each foot's time in the air, for the feet-air-time term.
+    pub feet_air: FeetAirTime,
     /// Randomised physical values of this episode.
     pub randomization: Randomization,
     /// Spawn point (world x, y) of this episode.

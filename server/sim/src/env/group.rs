@@ -11,8 +11,8 @@ use rapier3d::math::{Pose, Rotation, Vec3};
 use crate::physics::{ActuatorParams, PhysicsWorld, RobotState};
 use crate::robot::{NUM_FEET, NUM_JOINTS, RobotModel};
 use crate::task::{
-    self, LABEL_DIM, OBS_DIM, PRIVILEGED_DIM, Randomization, RewardInputs, RewardTerm, TaskContext,
-    TaskMode, euler_pitch, gait_coefficients, heading_direction, projected_gravity,
+    self, FeetAirTime, LABEL_DIM, OBS_DIM, PRIVILEGED_DIM, Randomization, RewardInputs, RewardTerm,
+    TaskContext, TaskMode, euler_pitch, gait_coefficients, heading_direction, projected_gravity,
     to_heading_frame, uniform,
 };
 use crate::terrain::{EpisodeDistance, Terrain};
@@ -88,6 +88,7 @@ impl EnvGroup {
                     episode_step: 0,
                     actions: [[0.0; NUM_JOINTS]; 3],
                     last_qd: [0.0; NUM_JOINTS],
+                    feet_air: FeetAirTime::default(),
                     randomization: nominal,
                     origin: [0.0; 2],
                     terrain_level: 0,
@@ -250,6 +251,7 @@ impl EnvGroup {
         };
         env.actions = [[0.0; NUM_JOINTS]; 3];
         env.last_qd = [0.0; NUM_JOINTS];
+        env.feet_air = FeetAirTime::default();
         let s = &mut self.states[slot];
         self.world.read_kinematics(model, slot, s);
         s.clear_contacts();
@@ -420,11 +422,14 @@ impl EnvGroup {
                     env.distance.add_unlived(command, left as f32 * dt, biped);
                 }
             }
+            let contact = s.foot_force.map(|f| f > cfg.rewards.contact_threshold);
+            let touchdown = self.envs[slot].feet_air.step(contact, cfg.policy_dt());
             let inputs = reward_inputs(
                 sh,
                 &self.envs[slot],
                 s,
                 terminated,
+                touchdown,
                 &self.torques[slot * NUM_JOINTS..],
             );
             let raw = task::raw_terms(&inputs, &ctx.reward, cfg);
@@ -530,6 +535,7 @@ fn reward_inputs(
     env: &EnvState,
     s: &RobotState,
     terminated: bool,
+    touchdown_air_time: [f32; NUM_FEET],
     torques: &[f32],
 ) -> RewardInputs {
     let cfg = &sh.ctx.config;
@@ -565,6 +571,7 @@ fn reward_inputs(
         foot_speed: s.foot_vel.map(|v| v.length()),
         foot_speed_xy: s.foot_vel.map(|v| v.truncate().length()),
         foot_clearance_height: foot_clearance_heights(sh, s, cfg.rewards.foot_clearance_radius),
+        touchdown_air_time,
         gait_quad: coeffs(cfg.gait.offsets_quad),
         gait_biped: coeffs(cfg.gait.offsets_biped),
     }

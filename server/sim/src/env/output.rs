@@ -14,7 +14,7 @@ pub struct StepOutput {
     pub privileged: Vec<f32>,
     /// Total reward: [N].
     pub reward: Vec<f32>,
-    /// Weighted reward per term: [N, 26] (RewardTerm order).
+    /// Weighted reward per term: [N, RewardTerm::COUNT] (RewardTerm order).
     pub reward_terms: Vec<f32>,
     /// The episode ended by a trunk contact (or a physics blow-up): [N], 0/1.
     pub terminated: Vec<u8>,

@@ -1,5 +1,6 @@
 //! The paper's locomotion task: config, observations, labels, rewards, gait clock, randomisation.
 
+mod air_time;
 mod config;
 mod config_validation;
 mod context;
@@ -10,6 +11,7 @@ mod randomization;
 mod reward_terms;
 mod rewards;
 
+pub use air_time::FeetAirTime;
 pub use config::{
     BipedStance, ClearanceWeighting, CommandParams, CommandRanges, DEFAULT_TASK_TOML, EnvParams,
     FrictionCombine, GaitParams, InitParams, ModeParams, NoiseParams, RandomizationParams, Range,

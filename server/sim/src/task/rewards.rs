@@ -57,6 +57,9 @@ pub struct RewardInputs {
     pub foot_speed_xy: [f32; NUM_FEET],
     /// Foot sole height above the highest terrain within the sampling radius (m).
     pub foot_clearance_height: [f32; NUM_FEET],
+    /// Air time (s) of each foot's swing that ended at this step, 0 for a foot that did not
+    /// touch down ([`crate::task::FeetAirTime`]).
+    pub touchdown_air_time: [f32; NUM_FEET],
     /// Gait weights per foot for the quad offsets.
     pub gait_quad: [GaitCoefficients; NUM_FEET],
     /// Gait weights per foot for the biped offsets.
@@ -234,6 +237,24 @@ pub fn reward_foot_clearance(error: f32, sharpness: f32) -> f32 {
     (-sharpness * error).exp()
 }
 
+/// legged_gym's feet air time: the sum over `feet` that touched down at this step of their air
+/// time minus `target` (s), and 0 when the commanded speed |v*_xy| is below 0.1 m/s (standing
+/// still needs no steps).
+pub fn reward_feet_air_time(
+    touchdown_air_time: &[f32; NUM_FEET],
+    feet: &[usize],
+    target: f32,
+    command_xy: [f32; 2],
+) -> f32 {
+    if command_xy[0].hypot(command_xy[1]) <= 0.1 {
+        return 0.0;
+    }
+    feet.iter()
+        .filter(|&&f| touchdown_air_time[f] > 0.0)
+        .map(|&f| touchdown_air_time[f] - target)
+        .sum()
+}
+
 /// exp(-2 |phi*_xy - phi_xy|^2) with (roll proxy, pitch).
 pub fn reward_biped_base_angle(target: [f32; 2], roll_proxy: f32, pitch: f32) -> f32 {
     (-2.0 * ((target[0] - roll_proxy).powi(2) + (target[1] - pitch).powi(2))).exp()
@@ -372,6 +393,12 @@ pub fn raw_terms(
                     &k.stance_feet,
                 ),
                 r.foot_clearance_sharpness,
+            ),
+            RewardTerm::BipedFeetAirTime => reward_feet_air_time(
+                &x.touchdown_air_time,
+                &k.stance_feet,
+                g.period_s * g.swing_ratio,
+                cmd_xy,
             ),
             RewardTerm::BipedRearLegs => {
                 cost_biped_rear_legs(&x.q, &k.raised_left, &k.raised_right)

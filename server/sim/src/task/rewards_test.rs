@@ -225,6 +225,7 @@ fn inputs() -> RewardInputs {
         foot_speed: [0.0; 4],
         foot_speed_xy: [0.0; 4],
         foot_clearance_height: [0.0; 4],
+        touchdown_air_time: [0.0; 4],
         gait_quad: [stance; 4],
         gait_biped: [stance; 4],
     }
@@ -265,6 +266,48 @@ fn the_clearance_weighting_is_chosen_by_the_config() {
 }
 
 #[test]
+fn feet_air_time_charges_a_short_swing_and_pays_a_long_one_at_touchdown() {
+    // FL swung 0.06 s, FR 0.30 s, RL (not a stance foot) 0.5 s; target 0.18 s.
+    let touchdown = [0.06, 0.30, 0.5, 0.0];
+    close(
+        reward_feet_air_time(&touchdown, &[0, 1], 0.18, [0.4, 0.0]),
+        (0.06 - 0.18) + (0.30 - 0.18),
+    );
+    close(
+        reward_feet_air_time(&[0.06, 0.0, 0.0, 0.0], &[0, 1], 0.18, [0.0, -0.3]),
+        -0.12,
+    );
+    // No touchdown, nothing; a command under 0.1 m/s asks for no steps.
+    close(
+        reward_feet_air_time(&[0.0; 4], &[0, 1], 0.18, [0.4, 0.0]),
+        0.0,
+    );
+    close(
+        reward_feet_air_time(&touchdown, &[0, 1], 0.18, [0.07, 0.07]),
+        0.0,
+    );
+}
+
+#[test]
+fn feet_air_time_targets_the_gait_clocks_swing() {
+    // Default clock: 0.45 s period, 0.4 swing: a 0.18 s swing is free, a shuffle of 0.04 s
+    // pays -0.14 at its touchdown.
+    let cfg = TaskConfig::default();
+    let k = constants();
+    let mut x = inputs();
+    x.command = [0.4, 0.0, 0.0];
+    let term = RewardTerm::BipedFeetAirTime as usize;
+    x.touchdown_air_time = [0.18, 0.0, 0.0, 0.0];
+    close(raw_terms(&x, &k, &cfg)[term], 0.0);
+    x.touchdown_air_time = [0.04, 0.0, 0.0, 0.0];
+    close(raw_terms(&x, &k, &cfg)[term], -0.14);
+    assert_eq!(
+        cfg.rewards.weights.0[term], 0.0,
+        "not in Table II: off by default"
+    );
+}
+
+#[test]
 fn biped_terms() {
     let mut q = zeros();
     // RL (6..9) and RR (9..12): hips mirror, so 0.1 / -0.1 is symmetric.
@@ -301,6 +344,7 @@ fn masks_indicators_and_ablations() {
     // The terms off by default get a weight, so every term shows its mask.
     cfg.rewards.weights.0[RewardTerm::BipedBodyContact as usize] = -1.0;
     cfg.rewards.weights.0[RewardTerm::BipedSidewaysReach as usize] = 1.0;
+    cfg.rewards.weights.0[RewardTerm::BipedFeetAirTime as usize] = 1.0;
     let weight = |t: RewardTerm| cfg.rewards.weights.0[t as usize];
     let raw = [1.0; RewardTerm::COUNT];
     let mut terms = [0.0; RewardTerm::COUNT];
