@@ -12,6 +12,9 @@ policy trained with). After a settling second the probe reports, per mode:
 - the first foot's (FL's) contact share and sole height by its clock phase, in tenths of the
   cycle (the swing window is the first ``gait.swing_ratio`` of it): a foot on its clock is in the
   air through its swing window and down through its stance, one off it the same throughout;
+- each swing's air time at its touchdown, counted as the `biped_feet_air_time` term counts it
+  (decision record 0040: a contact now or at the step before is a contact), and that term's
+  raw per-step mean for the mode's feet against the clock's swing;
 - the speed along the heading, falls, and every reward term's per-step mean.
 
 ``--lift DELTA`` adds DELTA to the calf action (``--joint``) of each stance-mode foot over its
@@ -87,6 +90,8 @@ class Probe:
     """One run's figures."""
 
     touchdowns_per_s: float
+    air_time_s: float
+    air_time_term: float
     contact_share: list[float]
     mid_swing_sole_m: float
     mid_swing_sole_p90_m: float
@@ -123,6 +128,8 @@ def run(server: LocalServer, args: argparse.Namespace, lift: float) -> Probe:
     history.reset(env.last.obs)
     before = env.last.obs[:, clock].clone()
     was = torch.ones(n, 4, dtype=torch.bool)
+    air = torch.zeros(n, 4)  # the server's FeetAirTime, client-side
+    swings: list[torch.Tensor] = []
     raise_by = torch.zeros(n, 4)
     fell = torch.zeros(n, dtype=torch.bool)
     onsets, foot_steps, mid, speeds = 0.0, 0.0, [], []
@@ -157,10 +164,21 @@ def run(server: LocalServer, args: argparse.Namespace, lift: float) -> Probe:
             speeds.append(velocity[alive][:, 0])
             term_sum += out.reward_terms[alive].sum(0)
             samples += int(alive.sum())
+        down = now | was
+        first = down & (air > 0)
+        air += DT
+        if t >= SETTLE_STEPS:
+            swings.append(air[~fell][:, feet][first[~fell][:, feet]])
+        air = torch.where(down, torch.zeros_like(air), air)
         was = now
     swing = torch.cat(mid)
     return Probe(
         touchdowns_per_s=onsets / foot_steps / DT,
+        air_time_s=float(torch.cat(swings).mean()),
+        air_time_term=float(
+            (torch.cat(swings).clamp(max=args.period * args.swing) - args.period * args.swing).sum()
+        )
+        / max(samples, 1),
         contact_share=(in_contact[feet] / max(samples, 1)).tolist(),
         mid_swing_sole_m=float(swing.mean()),
         mid_swing_sole_p90_m=float(swing.quantile(0.9)),
@@ -196,7 +214,8 @@ def main() -> None:
             r = run(server, args, lift)
             print(
                 f"{args.mode} lift {lift:+.2f}: touchdowns {r.touchdowns_per_s:.2f}/s per foot "
-                f"(clock {1 / args.period:.2f}), contact share "
+                f"(clock {1 / args.period:.2f}), swings {1000 * r.air_time_s:.0f} ms at touchdown "
+                f"(air-time term {r.air_time_term:+.4f} a step, raw), contact share "
                 + " ".join(f"{c:.2f}" for c in r.contact_share)
                 + f", mid-swing sole {100 * r.mid_swing_sole_m:.1f} cm (p90 "
                 f"{100 * r.mid_swing_sole_p90_m:.1f}), speed {r.speed_mps:.3f} m/s, falls "

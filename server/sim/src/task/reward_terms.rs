@@ -87,9 +87,9 @@ reward_terms! {
     // hips can.
     BipedSidewaysReach => "biped_sideways_reach", 0.0, BipedUpright;
     // Not in Table II (weight 0, the paper's task): legged_gym's feet air time for the stance
-    // feet, with the gait clock's swing (period x swing ratio) as its target. A biped that
-    // shuffles, touching down three times per clock cycle, pays at every touchdown; a swing as
-    // long as the clock's is free (docs/src/decisions/0040-feet-air-time-for-the-biped.md).
+    // feet, with the gait clock's swing (period x swing ratio) as its target and its cap. A
+    // biped that shuffles, touching down three times per clock cycle, pays at every touchdown;
+    // a swing as long as the clock's is free (docs/src/decisions/0040-feet-air-time-for-the-biped.md).
     BipedFeetAirTime => "biped_feet_air_time", 0.0, BipedUpright;
 }
 

@@ -237,9 +237,10 @@ pub fn reward_foot_clearance(error: f32, sharpness: f32) -> f32 {
     (-sharpness * error).exp()
 }
 
-/// legged_gym's feet air time: the sum over `feet` that touched down at this step of their air
-/// time minus `target` (s), and 0 when the commanded speed |v*_xy| is below 0.1 m/s (standing
-/// still needs no steps).
+/// legged_gym's feet air time, capped: the sum over `feet` that touched down at this step of
+/// min(air time, `target`) - `target` (s), and 0 when the commanded speed |v*_xy| is below
+/// 0.1 m/s (standing still needs no steps). A swing as long as the target is free and a longer
+/// one earns nothing more, so the term cannot pay for hops.
 pub fn reward_feet_air_time(
     touchdown_air_time: &[f32; NUM_FEET],
     feet: &[usize],
@@ -251,7 +252,7 @@ pub fn reward_feet_air_time(
     }
     feet.iter()
         .filter(|&&f| touchdown_air_time[f] > 0.0)
-        .map(|&f| touchdown_air_time[f] - target)
+        .map(|&f| touchdown_air_time[f].min(target) - target)
         .sum()
 }
 

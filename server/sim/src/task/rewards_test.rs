@@ -266,12 +266,17 @@ fn the_clearance_weighting_is_chosen_by_the_config() {
 }
 
 #[test]
-fn feet_air_time_charges_a_short_swing_and_pays_a_long_one_at_touchdown() {
-    // FL swung 0.06 s, FR 0.30 s, RL (not a stance foot) 0.5 s; target 0.18 s.
-    let touchdown = [0.06, 0.30, 0.5, 0.0];
+fn feet_air_time_charges_a_short_swing_at_touchdown_and_never_pays() {
+    // FL swung 0.06 s, FR 0.30 s (longer than the target: free, no more), RL (not a stance
+    // foot) 0.05 s; target 0.18 s.
+    let touchdown = [0.06, 0.30, 0.05, 0.0];
     close(
         reward_feet_air_time(&touchdown, &[0, 1], 0.18, [0.4, 0.0]),
-        (0.06 - 0.18) + (0.30 - 0.18),
+        0.06 - 0.18,
+    );
+    close(
+        reward_feet_air_time(&[0.18, 0.25, 0.0, 0.0], &[0, 1], 0.18, [0.4, 0.0]),
+        0.0,
     );
     close(
         reward_feet_air_time(&[0.06, 0.0, 0.0, 0.0], &[0, 1], 0.18, [0.0, -0.3]),
