@@ -116,9 +116,10 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     (bounded, higher_swing, heading, kernel, mirror, quad_heading, friction, run_on, levels) = (
         load_recipe("unified_terrain").stages[9:18]
     )
-    (climbs, swing, back, kernel_18, reach, min_reach, swing_phase, reach_3, clock) = load_recipe(
+    (climbs, swing, back, kernel_18, reach, min_reach, swing_phase, reach_3) = load_recipe(
         "unified_terrain"
-    ).stages[18:]
+    ).stages[18:26]
+    clock, air_time = load_recipe("unified_terrain").stages[26:]
     assert terrain.config.policy == settle.config.policy
     assert (
         terrain.config.env.task["rewards"]["weights"]
@@ -266,6 +267,9 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     # The twenty-seventh triples the biped's periodic gait weight, nothing else.
     weights = {**reach_3.config.env.task["rewards"]["weights"], "biped_periodic_gait": 6.0}
     _changes_one_section(clock, reach_3, "rewards", {"weights": weights})
+    # The twenty-eighth prices the biped's feet air time (decision 0040), nothing else.
+    weights = {**clock.config.env.task["rewards"]["weights"], "biped_feet_air_time": 30.0}
+    _changes_one_section(air_time, clock, "rewards", {"weights": weights})
     # --set applies on top of every stage.
     small = load_recipe("unified_flat", ["env.num_envs=8"])
     assert [s.config.env.num_envs for s in small.stages] == [8, 8, 8]
