@@ -36,7 +36,7 @@ from typing import Any
 import torch
 from probe_biped_walk import ObsFields, heading_frame, in_heading_frame
 from unigait.client import SessionConfig, open_session
-from unigait.config import toml_document
+from unigait.config import merged, toml_document
 from unigait.env import ObservationHistory, TorchVecEnv
 from unigait.export import load_policy
 from unigait.recipes import load_recipe
@@ -46,17 +46,6 @@ DT = 0.02
 SETTLE_STEPS = 50
 MID_SWING = (0.1, 0.3)  # local phase, the middle half of the default 0.4 swing window
 PHASE_BINS = 10
-
-
-def merged(base: dict[str, Any], top: dict[str, Any]) -> dict[str, Any]:
-    """``base`` with ``top``'s tables merged in, key by key."""
-    out = dict(base)
-    for key, value in top.items():
-        if isinstance(value, dict) and isinstance(out.get(key), dict):
-            out[key] = merged(out[key], value)
-        else:
-            out[key] = value
-    return out
 
 
 def task_toml(stage_task: dict[str, Any], mode: str, vx: float, engine: str) -> str:
