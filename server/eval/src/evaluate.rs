@@ -18,7 +18,8 @@ use crate::report::{EvalReport, TraversalCaseReport, TraversalReport, TraversalT
 use crate::runner::{Policies, Rollout, StepObserver, probe};
 use crate::scenario::{
     Mode, PUSH_INTERVAL_S, PUSH_VELOCITY_MPS, Scenario, ScenarioKind, TABLE_VI, TrackingSpec,
-    TraversalSpec, heading_hold, scenario, table_vi_scenarios, tracking_config, traversal_config,
+    TraversalSpec, angle_from, heading_hold, scenario, table_vi_scenarios, tracking_config,
+    traversal_config,
 };
 use crate::terrain::obstacle_terrain;
 use crate::transition::{run_transition, transition_metrics};
@@ -409,6 +410,8 @@ fn run_traversal(
             .collect();
         let mut ended: Vec<Option<(TraversalEnd, u32)>> = vec![None; envs];
         let mut best = vec![0.0f32; envs];
+        // Where each trial stands at its end: (lateral offset, heading off its course).
+        let mut last_pose = vec![(0.0f32, 0.0f32); envs];
         let direction = case.direction.signum();
         // The course is the heading each robot starts with; a trial that drifts off it is
         // steered back within the mode's yaw-rate range (decision record 0032).
@@ -440,6 +443,11 @@ fn run_traversal(
                 let progress = if p.terminated || p.truncated {
                     best[i]
                 } else {
+                    let lateral = direction * (p.base[1] - p.origin[1]);
+                    last_pose[i] = (
+                        lateral,
+                        angle_from(course[i], heading_yaw(rollout.env(), i)),
+                    );
                     direction * (p.base[0] - p.origin[0])
                 };
                 best[i] = best[i].max(progress);
@@ -476,6 +484,8 @@ fn run_traversal(
                 end,
                 progress_m: best[i],
                 time_s: step as f32 * dt,
+                lateral_m: last_pose[i].0,
+                heading_off_rad: last_pose[i].1,
                 contact_friction: contact_friction[i],
             });
         }

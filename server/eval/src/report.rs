@@ -22,6 +22,13 @@ pub struct TraversalTrial {
     pub progress_m: f32,
     /// When it ended (s).
     pub time_s: f32,
+    /// Where it ended across its course (m): the base's offset from the straight line out of its
+    /// spawn point, positive to the left of its direction of travel. A trial that paced along a
+    /// riser or a rim ends far off its course.
+    pub lateral_m: f32,
+    /// Its heading at the end against the heading it started with (rad, counterclockwise
+    /// positive, in [-pi, pi)).
+    pub heading_off_rad: f32,
     /// The friction coefficient of the trial's contacts with the ground (the robot's drawn one
     /// combined with the ground's, decision record 0034).
     pub contact_friction: f32,

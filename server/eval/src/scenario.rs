@@ -99,9 +99,13 @@ pub struct TraversalSpec {
 /// The yaw-rate command that steers heading `yaw` back to `target` (rad): `gain` times the
 /// error wrapped into [-pi, pi), within +-`limit` (the mode's command range).
 pub fn heading_hold(target: f32, yaw: f32, gain: f32, limit: f32) -> f32 {
+    (gain * angle_from(yaw, target)).clamp(-limit, limit)
+}
+
+/// The turn (rad, in [-pi, pi), counterclockwise positive) that takes heading `from` to `to`.
+pub(crate) fn angle_from(from: f32, to: f32) -> f32 {
     use std::f32::consts::{PI, TAU};
-    let error = (target - yaw + PI).rem_euclid(TAU) - PI;
-    (gain * error).clamp(-limit, limit)
+    (to - from + PI).rem_euclid(TAU) - PI
 }
 
 /// A mode switch on flat ground.
@@ -553,6 +557,20 @@ pub fn tracking_config(base: &TaskConfig, spec: &TrackingSpec) -> Result<TaskCon
 #[cfg(test)]
 mod test {
     use super::*;
+
+    #[test]
+    fn angles_between_headings_take_the_short_way_round() {
+        use std::f32::consts::PI;
+        let close = |a: f32, b: f32| assert!((a - b).abs() < 1e-5, "{a} vs {b}");
+        close(angle_from(0.0, 0.5), 0.5);
+        close(angle_from(0.5, 0.0), -0.5);
+        // From 170 deg to -170 deg is 20 deg counterclockwise, not 340 clockwise.
+        close(
+            angle_from(170f32.to_radians(), -170f32.to_radians()),
+            20f32.to_radians(),
+        );
+        close(angle_from(-3.0, 3.0), 6.0 - 2.0 * PI);
+    }
 
     /// Gain 1: 0.3 rad off steers back at 0.3 rad/s; 2 rad off is clamped to the biped's 0.5;
     /// an error past pi wraps to the short way round (3.0 - (-3.0) = 6.0 is -0.28 rad).

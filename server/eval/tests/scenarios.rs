@@ -2,7 +2,7 @@
 //! scripted fall is a failure, transition scenarios switch every env and their bookkeeping adds
 //! up, a switch inside a rollout reaches the next action, the two-policy baseline routes each
 //! env to its mode's policy, the committed ONNX test policy runs end to end, and a traversal
-//! steers each robot back to the heading it started with.
+//! steers each robot back to the heading it started with and reports where each trial ended.
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -588,4 +588,78 @@ fn a_traversal_steers_each_robot_back_to_its_starting_heading() {
     assert!(check.checked > 1000, "{} checks", check.checked);
     // A robot standing on its four feet turns by float noise: every command steers a little.
     assert!(check.steered > 0, "no command ever steered");
+}
+
+/// Each env's last pose before its trial ended, measured apart from the evaluator: the base's
+/// offset across the course (left of travel positive) and its heading off the starting one.
+#[derive(Default)]
+struct EndPose {
+    direction: f32,
+    course: Vec<f32>,
+    last: Vec<(f32, f32)>,
+    cases: Vec<(String, Vec<(f32, f32)>)>,
+}
+
+impl StepObserver for EndPose {
+    fn begin_case(&mut self, _: usize, name: &str, env: &VecEnv) {
+        self.direction = if name.contains("backward") { -1.0 } else { 1.0 };
+        self.course = (0..env.num_envs()).map(|i| heading_yaw(env, i)).collect();
+        self.last = vec![(0.0, 0.0); env.num_envs()];
+        self.cases.push((name.to_string(), Vec::new()));
+    }
+    fn after_step(&mut self, _: usize, _: u32, env: &VecEnv) {
+        for i in 0..env.num_envs() {
+            let p = probe(env, i);
+            if p.terminated || p.truncated {
+                continue;
+            }
+            let mut off = heading_yaw(env, i) - self.course[i];
+            while off >= std::f32::consts::PI {
+                off -= std::f32::consts::TAU;
+            }
+            while off < -std::f32::consts::PI {
+                off += std::f32::consts::TAU;
+            }
+            self.last[i] = (self.direction * (p.base[1] - p.origin[1]), off);
+        }
+    }
+    fn end_case(&mut self, _: usize) {
+        if let Some(case) = self.cases.last_mut() {
+            case.1 = self.last.clone();
+        }
+    }
+}
+
+#[test]
+fn a_trial_reports_where_it_ended_across_its_course() {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/test_policy.onnx");
+    let policy = OnnxPolicy::from_path(path, sim_policy_spec()).expect("test policy");
+    let policies = Policies::Unified(Arc::new(policy));
+    let mut ends = EndPose::default();
+    let report = evaluate("stairs_down_quad", &policies, &options(4), &mut ends).expect("runs");
+    let t = report.traversal.expect("traversal report");
+    assert_eq!(ends.cases.len(), 2, "forward and backward");
+    let mut off_course = 0.0f32;
+    for o in &t.outcomes {
+        let (_, poses) = ends
+            .cases
+            .iter()
+            .find(|(name, _)| name == o.case)
+            .expect("the case ran");
+        let (lateral, heading) = poses[o.env];
+        assert!((o.lateral_m - lateral).abs() < 1e-5, "{o:?} vs {lateral}");
+        assert!(
+            (o.heading_off_rad - heading).abs() < 1e-5,
+            "{o:?} vs {heading}"
+        );
+        off_course = off_course.max(o.lateral_m.abs());
+    }
+    // The test policy is no walker: its robots end visibly off the straight line.
+    assert!(off_course > 0.01, "{:?}", t.outcomes);
+    // Standing still ends where it started, facing the way it started.
+    let report = evaluate("flat_quad", &stand_still(), &options(2), &mut NoObserver).expect("runs");
+    for o in &report.traversal.expect("traversal report").outcomes {
+        assert!(o.lateral_m.abs() < 0.02, "{o:?}");
+        assert!(o.heading_off_rad.abs() < 0.05, "{o:?}");
+    }
 }
