@@ -489,6 +489,17 @@ def _checks(args: argparse.Namespace) -> int:
     return 0
 
 
+def _trials(args: argparse.Namespace) -> int:
+    from unigait.trial_table import TrialTableError, read_trials, trial_tables
+
+    try:
+        print(trial_tables(read_trials(Path(args.report)), everything=args.all), end="")
+    except TrialTableError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of every sub-command."""
     p = argparse.ArgumentParser(prog="unigait", description=__doc__)
@@ -726,6 +737,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     k.add_argument("log_dir", help="a run's --log-dir, or one stage's folder in it")
     k.set_defaults(func=_checks)
+
+    r = sub.add_parser(
+        "trials", help="a traversal report's trials: where each ended, one table per scenario"
+    )
+    r.add_argument("report", help="a JSON report of evaluate --report (or ship's)")
+    r.add_argument("--all", action="store_true", help="every trial, not only those that failed")
+    r.set_defaults(func=_trials)
 
     mujoco_cli.register(sub)  # sim2sim, crosscheck, mujoco-bench: MuJoCo imported on use
     return p
