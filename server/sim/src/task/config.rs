@@ -327,6 +327,10 @@ pub struct RewardParams {
     pub upright_pitch: f32,
     /// Desired swing foot height above the highest terrain within 2 cm (m). Default 0.08.
     pub foot_clearance_target: f32,
+    /// The biped's own clearance target (m); unset (the default), the biped's term uses
+    /// `foot_clearance_target` as the quad's does (decision record 0041).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub biped_foot_clearance_target: Option<f32>,
     /// Radius of the terrain sampling around each foot (m). Default 0.02.
     pub foot_clearance_radius: f32,
     /// k of the foot clearance reward exp(-k error). Default 100 (Eq. 4 and 6); a steeper
@@ -414,6 +418,7 @@ impl Default for RewardParams {
             biped_angle_target: [0.0, std::f32::consts::FRAC_PI_2],
             upright_pitch: 1.4,
             foot_clearance_target: 0.08,
+            biped_foot_clearance_target: None,
             foot_clearance_radius: 0.02,
             foot_clearance_sharpness: 100.0,
             foot_clearance_weighting: ClearanceWeighting::FootSpeed,

@@ -184,6 +184,9 @@ impl TaskConfig {
             0.0,
             1.0,
         )?;
+        if let Some(target) = w.biped_foot_clearance_target {
+            check("rewards.biped_foot_clearance_target", target, 0.0, 1.0)?;
+        }
         check(
             "rewards.foot_clearance_radius",
             w.foot_clearance_radius,

@@ -390,7 +390,8 @@ pub fn raw_terms(
                 foot_clearance_error(
                     &x.foot_clearance_height,
                     &clearance_weights(r.foot_clearance_weighting, &x.foot_speed_xy, &x.gait_biped),
-                    r.foot_clearance_target,
+                    r.biped_foot_clearance_target
+                        .unwrap_or(r.foot_clearance_target),
                     &k.stance_feet,
                 ),
                 r.foot_clearance_sharpness,

@@ -266,6 +266,44 @@ fn the_clearance_weighting_is_chosen_by_the_config() {
 }
 
 #[test]
+fn the_biped_may_have_its_own_clearance_target() {
+    let mut cfg = TaskConfig::default();
+    cfg.rewards.foot_clearance_target = 0.18;
+    let k = constants();
+    let mut x = inputs();
+    // Eq. 4's weighting: the front feet swing at 1 m/s, 12 cm up; the rear ones stand.
+    x.foot_clearance_height = [0.12, 0.12, 0.022, 0.022];
+    x.foot_speed_xy = [1.0, 1.0, 0.0, 0.0];
+    let (quad, biped) = (
+        RewardTerm::QuadFootClearance as usize,
+        RewardTerm::BipedFootClearance as usize,
+    );
+    // Unset, both modes price the front feet 6 cm short of 18: exp(-100 x 2 x 0.06^2).
+    let short = (-0.72f32).exp();
+    let terms = raw_terms(&x, &k, &cfg);
+    close(terms[quad], short);
+    close(terms[biped], short);
+    // The biped's own 12 cm: its feet are on target; the quad's term is unchanged.
+    cfg.rewards.biped_foot_clearance_target = Some(0.12);
+    let terms = raw_terms(&x, &k, &cfg);
+    close(terms[quad], short);
+    close(terms[biped], 1.0);
+    // Out of range, it is refused by name.
+    cfg.rewards.biped_foot_clearance_target = Some(1.5);
+    let err = cfg.validate().expect_err("1.5 m is no clearance target");
+    assert!(
+        err.to_string()
+            .contains("rewards.biped_foot_clearance_target"),
+        "{err}"
+    );
+    // From TOML, as a recipe stage sets it.
+    let parsed = TaskConfig::default()
+        .with_overrides("[rewards]\nbiped_foot_clearance_target = 0.12\n")
+        .expect("valid");
+    assert_eq!(parsed.rewards.biped_foot_clearance_target, Some(0.12));
+}
+
+#[test]
 fn feet_air_time_charges_a_short_swing_at_touchdown_and_never_pays() {
     // FL swung 0.06 s, FR 0.30 s (longer than the target: free, no more), RL (not a stance
     // foot) 0.05 s; target 0.18 s.
