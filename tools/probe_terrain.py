@@ -13,14 +13,22 @@ same policy on flat ground (where the terrain costs it reward, and what it is pa
     UNIGAIT_SERVER_BIN=target/release/unigait-server .venv/bin/python tools/probe_terrain.py \
         assets/training/unified_terrain/01_terrain/model_latest.pt --terrain stairs_up \
         --levels 0 1 2 3 --mode quad --vx 0.5
+
+``--lift DELTA ...`` runs each level once per offset added to the calf actions of ``--legs``
+over each foot's clock swing window (a half sine, as ``probe_gait_clock.py --lift``): would a
+higher swing of those feet climb where the policy's own does not? Each run also reports the share
+of envs whose base got past the tile's edge (half a tile from where it stood): out of a
+stairs-up pit or up a slope-up pyramid.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 
 import torch
 from probe_biped_walk import ActionNoise, ObsFields, heading_frame, in_heading_frame
+from probe_gait_clock import clock_phase
 from unigait.client import SessionConfig, open_session
 from unigait.env import ObservationHistory, TorchVecEnv
 from unigait.export import load_policy
@@ -32,7 +40,11 @@ PROMOTE, DEMOTE = (
     0.5,
 )  # the curriculum's shares of the commanded distance (decision 0022)
 MIN_PROMOTE_M = 2.0
+GAIT_PERIOD_S, GAIT_SWING_RATIO = 0.45, 0.4  # the task's [gait] defaults
 MAX_DRAWN = 64  # the envs a step returns poses of
+TILE_EDGE_M = 4.0  # half the default 8 m tile: the spawn point to the tile's edge
+LEGS = {"front": ("FL", "FR"), "hind": ("RL", "RR"), "all": ("FL", "FR", "RL", "RR")}
+FOOT = {"FL": 0, "FR": 1, "RL": 2, "RR": 3}
 
 
 def overrides(mode: str, vx: float, episode_s: float) -> str:
@@ -78,12 +90,15 @@ def rollout(
     seed: int,
     sampled: bool = False,
     extra_toml: str = "",
+    lift: float = 0.0,
+    legs: str = "all",
 ) -> tuple[Rollout, tuple[str, ...]]:
     """Run ``steps`` policy steps (no env survives past its first episode in the counts).
 
     ``sampled`` draws each action from the policy's Gaussian, as the training rollouts (and
     so the curriculum's promotions) do, instead of taking its mean. ``extra_toml`` is appended
-    to the task overrides (tables the probe does not set itself, e.g. ``[rewards]``).
+    to the task overrides (tables the probe does not set itself, e.g. ``[rewards]``). ``lift``
+    is added to the calf actions of ``legs`` over each foot's clock swing window.
     """
     policy, dims, engine = load_policy(checkpoint)
     noise = ActionNoise(checkpoint, sampled, seed)
@@ -110,11 +125,26 @@ def rollout(
     drawn = list(range(min(envs, MAX_DRAWN)))
     start: torch.Tensor | None = None
     reach = torch.zeros(len(drawn))
+    spec = env.spec
+    lifted = [
+        (FOOT[leg], next(i for i, n in enumerate(spec.joint_names) if n.startswith(f"{leg}_calf")))
+        for leg in LEGS[legs]
+    ]
+    clock = spec.obs.slice("clock")
+    before = env.last.obs[:, clock].clone()
+    raise_by = torch.zeros(envs, 4)
+    period, swing = GAIT_PERIOD_S, GAIT_SWING_RATIO
     for _ in range(steps):
         with torch.no_grad():
-            actions = policy(history.flat.view(envs, 3, -1))
-            actions = noise(actions)
+            actions = noise(policy(history.flat.view(envs, 3, -1))).clone()
+        for foot, joint in lifted:
+            actions[:, joint] += lift * raise_by[:, foot]
         out = env.step(actions, draw_envs=drawn)
+        # Each foot's swing window one step ahead, as an action acts over the next step.
+        phase = clock_phase(out.obs[:, clock], before)
+        before = out.obs[:, clock].clone()
+        lead = (phase + DT / period).remainder(1.0)
+        raise_by = torch.where(lead < swing, torch.sin(math.pi * lead / swing), 0.0)
         if out.body_poses is not None:
             base = torch.as_tensor(out.body_poses[:, 0, :2].copy())
             start = base if start is None else start
@@ -154,6 +184,8 @@ def main() -> None:
     p.add_argument("--seed", type=int, default=5)
     p.add_argument("--terms", type=int, default=6, help="reward terms listed per level")
     p.add_argument("--sampled", action="store_true", help="actions drawn with the policy's std")
+    p.add_argument("--lift", type=float, nargs="+", default=[0.0], help="calf action offsets")
+    p.add_argument("--legs", choices=sorted(LEGS), default="all", help="whose calves --lift moves")
     p.add_argument(
         "--task-toml",
         default="",
@@ -166,7 +198,7 @@ def main() -> None:
     promote_m = max(PROMOTE * commanded, MIN_PROMOTE_M)
     with LocalServer() as server:
 
-        def run(terrain: str, level: int) -> tuple[Rollout, tuple[str, ...]]:
+        def run(terrain: str, level: int, lift: float = 0.0) -> tuple[Rollout, tuple[str, ...]]:
             return rollout(
                 server,
                 a.checkpoint,
@@ -179,6 +211,8 @@ def main() -> None:
                 a.seed,
                 a.sampled,
                 extra,
+                lift,
+                a.legs,
             )
 
         flat, names = run("flat", 0)
@@ -189,20 +223,22 @@ def main() -> None:
             + "/".join(f"{h:.3f}" for h in flat.apex.tolist()),
             flush=True,
         )
-        for level in a.levels:
-            r, _ = run(a.terrain, level)
+        for level, lift in ((level, lift) for level in a.levels for lift in a.lift):
+            r, _ = run(a.terrain, level, lift)
             walked = r.distance * (1.0 if a.vx >= 0 else -1.0)
             delta = r.terms - flat.terms
             worst = delta.abs().argsort(descending=True)[: a.terms]
             listed = ", ".join(
                 f"{names[i]} {r.terms[i]:+.4f} ({delta[i]:+.4f})" for i in worst.tolist()
             )
+            lifted = f" lift {lift:+.1f} ({a.legs})" if len(a.lift) > 1 or lift else ""
             print(
-                f"{a.terrain} level {level}: walked {walked.mean():+.2f} m "
+                f"{a.terrain} level {level}{lifted}: walked {walked.mean():+.2f} m "
                 f"(quartiles {walked.quantile(0.25):+.2f} / {walked.median():+.2f} / "
                 f"{walked.quantile(0.75):+.2f}; estimated {r.estimated.mean():+.2f}), "
                 f"reach {r.reach.mean():.2f} m (quartiles {r.reach.quantile(0.25):.2f} / "
-                f"{r.reach.median():.2f} / {r.reach.quantile(0.75):.2f}), "
+                f"{r.reach.median():.2f} / {r.reach.quantile(0.75):.2f}; past the tile's edge "
+                f"{(r.reach >= TILE_EDGE_M).float().mean():.2f}), "
                 f"promoted {(walked > promote_m).float().mean():.2f}, "
                 f"demoted {(walked < DEMOTE * commanded).float().mean():.2f}, "
                 f"fell {r.fell.float().mean():.2f}, feet's 90th percentile height "
