@@ -5,7 +5,8 @@ along its course, where it stood across the course and which way it faced at the
 ended and the friction of its contacts. ``python -m unigait trials R.json`` lays them out as one
 Markdown table per scenario (a ``table_vi`` report holds one per column), the trials that did not
 cross by default, every trial with ``--all``. A trial's number is the one ``evaluate
---record-env`` takes: its place in its scenario's list, across the cases.
+--record-env`` takes with the report's own scenario, seed and trials: its place in the report's
+list, across the cases and, in a ``table_vi`` report, across the columns.
 """
 
 from __future__ import annotations
@@ -55,12 +56,13 @@ def read_trials(path: Path) -> list[Trial]:
     if not isinstance(report, dict):
         raise TrialTableError(f"{path}: not an evaluation report")
     parts = report.get("parts") or [report]
-    trials = [
-        Trial(str(part.get("scenario", "?")), k, outcome)
+    outcomes = [
+        (str(part.get("scenario", "?")), outcome)
         for part in parts
         if isinstance(part, dict) and isinstance(part.get("traversal"), dict)
-        for k, outcome in enumerate(part["traversal"].get("outcomes", []))
+        for outcome in part["traversal"].get("outcomes", [])
     ]
+    trials = [Trial(scenario, k, outcome) for k, (scenario, outcome) in enumerate(outcomes)]
     if not trials:
         raise TrialTableError(f"{path}: no traversal trials (a tracking or transition report?)")
     return trials
