@@ -74,6 +74,15 @@ def clock_phase(now: torch.Tensor, before: torch.Tensor) -> torch.Tensor:
     return torch.where(now >= before, base, 0.5 - base).remainder(1.0)
 
 
+def swing_lift(phase: torch.Tensor, period: float, swing: float) -> torch.Tensor:
+    """Each foot's lift share for the next action: a half sine over its clock swing window.
+
+    Read one step ahead, since an action acts over the next step.
+    """
+    lead = (phase + DT / period).remainder(1.0)
+    return torch.where(lead < swing, torch.sin(math.pi * lead / swing), 0.0)
+
+
 @dataclass
 class Probe:
     """One run's figures."""
@@ -133,8 +142,7 @@ def run(server: LocalServer, args: argparse.Namespace, lift: float) -> Probe:
         history.push(out.obs, out.dones)
         phase = clock_phase(out.obs[:, clock], before)
         before = out.obs[:, clock].clone()
-        lead = (phase + DT / args.period).remainder(1.0)
-        raise_by = torch.where(lead < args.swing, torch.sin(math.pi * lead / args.swing), 0.0)
+        raise_by = swing_lift(phase, args.period, args.swing)
         now = out.labels[:, contact.offset : contact.offset + 4] > 0.5
         fell |= out.terminated
         if t >= SETTLE_STEPS:

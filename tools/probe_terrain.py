@@ -24,11 +24,10 @@ stairs-up pit or up a slope-up pyramid.
 from __future__ import annotations
 
 import argparse
-import math
 
 import torch
 from probe_biped_walk import ActionNoise, ObsFields, heading_frame, in_heading_frame
-from probe_gait_clock import clock_phase
+from probe_gait_clock import clock_phase, swing_lift
 from unigait.client import SessionConfig, open_session
 from unigait.env import ObservationHistory, TorchVecEnv
 from unigait.export import load_policy
@@ -133,18 +132,15 @@ def rollout(
     clock = spec.obs.slice("clock")
     before = env.last.obs[:, clock].clone()
     raise_by = torch.zeros(envs, 4)
-    period, swing = GAIT_PERIOD_S, GAIT_SWING_RATIO
     for _ in range(steps):
         with torch.no_grad():
             actions = noise(policy(history.flat.view(envs, 3, -1))).clone()
         for foot, joint in lifted:
             actions[:, joint] += lift * raise_by[:, foot]
         out = env.step(actions, draw_envs=drawn)
-        # Each foot's swing window one step ahead, as an action acts over the next step.
         phase = clock_phase(out.obs[:, clock], before)
         before = out.obs[:, clock].clone()
-        lead = (phase + DT / period).remainder(1.0)
-        raise_by = torch.where(lead < swing, torch.sin(math.pi * lead / swing), 0.0)
+        raise_by = swing_lift(phase, GAIT_PERIOD_S, GAIT_SWING_RATIO)
         if out.body_poses is not None:
             base = torch.as_tensor(out.body_poses[:, 0, :2].copy())
             start = base if start is None else start
