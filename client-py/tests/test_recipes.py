@@ -119,7 +119,7 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     (climbs, swing, back, kernel_18, reach, min_reach, swing_phase, reach_3) = load_recipe(
         "unified_terrain"
     ).stages[18:26]
-    clock, air_time, quad_swing = load_recipe("unified_terrain").stages[26:]
+    clock, air_time, quad_swing, biped_forward = load_recipe("unified_terrain").stages[26:]
     assert terrain.config.policy == settle.config.policy
     assert (
         terrain.config.env.task["rewards"]["weights"]
@@ -273,6 +273,10 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     # The twenty-ninth raises the quad's clearance target and keeps the biped's (0041).
     changes = {"foot_clearance_target": 0.18, "biped_foot_clearance_target": 0.12}
     _changes_one_section(quad_swing, air_time, "rewards", changes)
+    # The thirtieth raises the biped's velocity-tracking weight from 8 to 12, nothing else.
+    weights = {**quad_swing.config.env.task["rewards"]["weights"], "biped_tracking_lin_vel": 12.0}
+    assert quad_swing.config.env.task["rewards"]["weights"]["biped_tracking_lin_vel"] == 8.0
+    _changes_one_section(biped_forward, quad_swing, "rewards", {"weights": weights})
     # --set applies on top of every stage.
     small = load_recipe("unified_flat", ["env.num_envs=8"])
     assert [s.config.env.num_envs for s in small.stages] == [8, 8, 8]
