@@ -119,7 +119,8 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     (climbs, swing, back, kernel_18, reach, min_reach, swing_phase, reach_3) = load_recipe(
         "unified_terrain"
     ).stages[18:26]
-    clock, air_time, quad_swing, biped_forward = load_recipe("unified_terrain").stages[26:]
+    late = load_recipe("unified_terrain").stages[26:]
+    clock, air_time, quad_swing, biped_forward, quad_pace_6 = late
     assert terrain.config.policy == settle.config.policy
     assert (
         terrain.config.env.task["rewards"]["weights"]
@@ -277,6 +278,10 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     weights = {**quad_swing.config.env.task["rewards"]["weights"], "biped_tracking_lin_vel": 12.0}
     assert quad_swing.config.env.task["rewards"]["weights"]["biped_tracking_lin_vel"] == 8.0
     _changes_one_section(biped_forward, quad_swing, "rewards", {"weights": weights})
+    # The thirty-first raises the quad's velocity-tracking weight from 4 to 6, nothing else.
+    weights = {**weights, "quad_tracking_lin_vel": 6.0}
+    assert biped_forward.config.env.task["rewards"]["weights"]["quad_tracking_lin_vel"] == 4.0
+    _changes_one_section(quad_pace_6, biped_forward, "rewards", {"weights": weights})
     # --set applies on top of every stage.
     small = load_recipe("unified_flat", ["env.num_envs=8"])
     assert [s.config.env.num_envs for s in small.stages] == [8, 8, 8]
