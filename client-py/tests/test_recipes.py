@@ -289,7 +289,6 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     )
     assert terrain_settle.config.policy == quad_pace_6.config.policy
     assert terrain_settle.stop.milestone == "M3" and terrain_settle.stop.check_every == 250
-    assert quad_pace_6.stop.iterations == 1500
     # --set applies on top of every stage.
     small = load_recipe("unified_flat", ["env.num_envs=8"])
     assert [s.config.env.num_envs for s in small.stages] == [8, 8, 8]
