@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use unigait_sim::env::{VecEnv, VecEnvOptions};
 use unigait_sim::robot::RobotModel;
-use unigait_sim::task::{TaskConfig, heading_direction};
+use unigait_sim::task::{TaskConfig, angle_from};
 use unigait_sim::terrain::Terrain;
 
 use crate::error::EvalError;
@@ -18,8 +18,7 @@ use crate::report::{EvalReport, TraversalCaseReport, TraversalReport, TraversalT
 use crate::runner::{Policies, Rollout, StepObserver, probe};
 use crate::scenario::{
     Mode, PUSH_INTERVAL_S, PUSH_VELOCITY_MPS, Scenario, ScenarioKind, TABLE_VI, TrackingSpec,
-    TraversalSpec, angle_from, heading_hold, scenario, table_vi_scenarios, tracking_config,
-    traversal_config,
+    TraversalSpec, heading_hold, scenario, table_vi_scenarios, tracking_config, traversal_config,
 };
 use crate::terrain::obstacle_terrain;
 use crate::transition::{run_transition, transition_metrics};
@@ -345,8 +344,7 @@ pub(crate) fn merge_tracking(into: &mut RunTotals, rollout: &Rollout) {
 
 /// Env `i`'s heading (rad, world yaw of the heading frame's forward axis).
 fn heading_yaw(env: &VecEnv, i: usize) -> f32 {
-    let h = heading_direction(env.robot_state(i).base_rot);
-    h.y.atan2(h.x)
+    unigait_sim::task::heading_yaw(env.robot_state(i).base_rot)
 }
 
 /// The largest yaw-rate command of `mode`'s training range.
@@ -424,7 +422,8 @@ fn run_traversal(
                     *command = ended[i].is_none().then(|| {
                         let mut c = rollout.env().env_state(i).command;
                         let yaw = heading_yaw(rollout.env(), i);
-                        c[2] = heading_hold(course[i], yaw, spec.heading_gain, wz_limit);
+                        c[2] =
+                            heading_hold(course[i], yaw, spec.heading_gain, [-wz_limit, wz_limit]);
                         c
                     });
                 }

@@ -19,6 +19,7 @@
 //! observation noise stay as the base config has them.
 
 use serde::Serialize;
+pub use unigait_sim::task::heading_hold;
 use unigait_sim::task::{TaskConfig, TaskMode};
 
 use crate::error::EvalError;
@@ -94,18 +95,6 @@ pub struct TraversalSpec {
     /// Yaw-rate command per radian the heading is off its start (1/s): the operator who kept
     /// the paper's robots on course; 0 leaves the yaw-rate command at 0 (decision record 0032).
     pub heading_gain: f32,
-}
-
-/// The yaw-rate command that steers heading `yaw` back to `target` (rad): `gain` times the
-/// error wrapped into [-pi, pi), within +-`limit` (the mode's command range).
-pub fn heading_hold(target: f32, yaw: f32, gain: f32, limit: f32) -> f32 {
-    (gain * angle_from(yaw, target)).clamp(-limit, limit)
-}
-
-/// The turn (rad, in [-pi, pi), counterclockwise positive) that takes heading `from` to `to`.
-pub(crate) fn angle_from(from: f32, to: f32) -> f32 {
-    use std::f32::consts::{PI, TAU};
-    (to - from + PI).rem_euclid(TAU) - PI
 }
 
 /// A mode switch on flat ground.
@@ -559,33 +548,7 @@ mod test {
     use super::*;
 
     #[test]
-    fn angles_between_headings_take_the_short_way_round() {
-        use std::f32::consts::PI;
-        let close = |a: f32, b: f32| assert!((a - b).abs() < 1e-5, "{a} vs {b}");
-        close(angle_from(0.0, 0.5), 0.5);
-        close(angle_from(0.5, 0.0), -0.5);
-        // From 170 deg to -170 deg is 20 deg counterclockwise, not 340 clockwise.
-        close(
-            angle_from(170f32.to_radians(), -170f32.to_radians()),
-            20f32.to_radians(),
-        );
-        close(angle_from(-3.0, 3.0), 6.0 - 2.0 * PI);
-    }
-
-    /// Gain 1: 0.3 rad off steers back at 0.3 rad/s; 2 rad off is clamped to the biped's 0.5;
-    /// an error past pi wraps to the short way round (3.0 - (-3.0) = 6.0 is -0.28 rad).
-    #[test]
-    fn the_heading_hold_steers_the_short_way_within_the_range() {
-        let close = |a: f32, b: f32| assert!((a - b).abs() < 1e-5, "{a} vs {b}");
-        close(heading_hold(0.0, -0.3, 1.0, 0.5), 0.3);
-        close(heading_hold(0.0, 0.3, 1.0, 0.5), -0.3);
-        close(heading_hold(0.0, 2.0, 1.0, 0.5), -0.5);
-        close(
-            heading_hold(3.0, -3.0, 1.0, 1.0),
-            6.0 - std::f32::consts::TAU,
-        );
-        close(heading_hold(1.0, 1.0, 1.0, 1.0), 0.0);
-        assert_eq!(heading_hold(0.0, 0.4, 0.0, 1.0), 0.0);
+    fn every_table_vi_traversal_steers_with_the_same_gain() {
         for s in table_vi_scenarios() {
             assert_eq!(
                 traversal_spec(s.name).heading_gain,

@@ -15,7 +15,7 @@ use unigait_eval::{
 use unigait_policy::{ConstantPolicy, ObsHistory, OnnxPolicy, Policy, PolicyError, PolicySpec};
 use unigait_sim::env::{VecEnv, VecEnvOptions};
 use unigait_sim::robot::RobotModel;
-use unigait_sim::task::{OBS_DIM, OBSERVATION, TaskConfig, heading_direction, slice_of};
+use unigait_sim::task::{OBS_DIM, OBSERVATION, TaskConfig, slice_of};
 use unigait_sim::terrain::Terrain;
 
 fn options(envs: usize) -> EvalOptions {
@@ -542,8 +542,7 @@ fn push_scenarios_push_and_standing_still_scores_the_do_nothing_baseline() {
 }
 
 fn heading_yaw(env: &VecEnv, i: usize) -> f32 {
-    let h = heading_direction(env.robot_state(i).base_rot);
-    h.y.atan2(h.x)
+    unigait_sim::task::heading_yaw(env.robot_state(i).base_rot)
 }
 
 /// After every step of a traversal, checks each running env's yaw-rate command against the
@@ -566,7 +565,7 @@ impl StepObserver for HeadingCheck {
             let e = env.env_state(i);
             if e.episode_step > 0 {
                 // The quad's yaw-rate range is +-1 rad/s; the gain is 1.
-                let expected = heading_hold(self.course[i], self.last_yaw[i], 1.0, 1.0);
+                let expected = heading_hold(self.course[i], self.last_yaw[i], 1.0, [-1.0, 1.0]);
                 assert!(
                     (e.command[2] - expected).abs() < 1e-6,
                     "env {i}: {} vs {expected}",

@@ -441,3 +441,89 @@ fn feet_air_time_charges_a_short_swing_once_at_its_touchdown() {
     );
     assert!(charged.is_empty(), "costs nothing: {charged:?}");
 }
+
+/// `commands.heading_share = 1` (decision record 0042): every command draw holds a heading of
+/// its own, and after every step each env's yaw-rate command, in o_t too, is the heading hold
+/// of that heading from where the body now faces, within its mode's range, while the robots
+/// turn under random actions.
+#[test]
+fn a_held_heading_steers_the_yaw_rate_command_every_step() {
+    use unigait_sim::task::{heading_hold, heading_yaw};
+    let cfg = calm_config("[commands]\nheading_share = 1.0\nheading_gain = 2.0");
+    let n = 16;
+    let mut env = batch(cfg.clone(), n, 3, 1);
+    let mut rng = 7u64;
+    let mut targets = Vec::new();
+    let mut steered = 0;
+    for _ in 0..400 {
+        let out = env
+            .step(&random_actions(n, &mut rng))
+            .expect("step")
+            .clone();
+        for i in 0..n {
+            let s = env.env_state(i);
+            let target = s.held_heading.expect("every draw holds a heading");
+            targets.push(target);
+            let range = match s.mode {
+                TaskMode::Biped => cfg.commands.biped.wz,
+                TaskMode::Quad => cfg.commands.quad.wz,
+            };
+            let yaw = heading_yaw(env.robot_state(i).base_rot);
+            let want = heading_hold(target, yaw, 2.0, range);
+            assert!(
+                (s.command[2] - want).abs() < 1e-6,
+                "env {i}: wz {} vs {want}",
+                s.command[2]
+            );
+            assert_eq!(obs_slice(&out, i, "cmd")[2], s.command[2] * 0.25);
+            steered += usize::from(want != 0.0 && want.abs() < range[1]);
+        }
+    }
+    assert!(steered > 0, "no command ever steered inside its range");
+    let (lo, hi) = targets
+        .iter()
+        .fold((f32::MAX, f32::MIN), |(a, b), &t| (a.min(t), b.max(t)));
+    assert!(lo < -2.0 && hi > 2.0, "headings drawn over [{lo}, {hi}]");
+}
+
+/// At `heading_share` 0.5 about half the draws hold a heading; at 0 none does, and the commands
+/// are the paper task's draws whatever the gain (the random stream is untouched).
+#[test]
+fn the_heading_share_decides_how_many_draws_hold_a_heading() {
+    let n = 256;
+    let held = |extra: &str| {
+        let env = batch(calm_config(&format!("[commands]\n{extra}")), n, 11, 1);
+        let count = (0..n)
+            .filter(|&i| env.env_state(i).held_heading.is_some())
+            .count();
+        let commands: Vec<_> = (0..n).map(|i| env.env_state(i).command).collect();
+        (count, commands)
+    };
+    let (half, _) = held("heading_share = 0.5");
+    assert!(
+        (90..=166).contains(&half),
+        "{half} of {n} draws hold a heading"
+    );
+    let (none, commands) = held("heading_share = 0.0\nheading_gain = 3.0");
+    let (_, paper) = held("");
+    assert_eq!(none, 0);
+    assert_eq!(commands, paper);
+}
+
+/// A caller's command (`set_mode` with a command) is kept as given: no held heading steers it.
+#[test]
+fn a_callers_command_is_not_steered() {
+    let cfg = calm_config("[commands]\nheading_share = 1.0");
+    let n = 4;
+    let mut env = batch(cfg, n, 5, 1);
+    let given = [0.3, 0.0, 0.2];
+    env.set_mode(0, TaskMode::Quad, Some(given))
+        .expect("set_mode");
+    assert_eq!(env.env_state(0).held_heading, None);
+    let mut rng = 1u64;
+    for _ in 0..50 {
+        env.step(&random_actions(n, &mut rng)).expect("step");
+        assert_eq!(env.env_state(0).command, given);
+        assert!(env.env_state(1).held_heading.is_some());
+    }
+}

@@ -1,10 +1,14 @@
 //! The episode state of one env: RNG, mode, commands, clocks, action history, randomisation.
 
+use std::f32::consts::PI;
+
 use rand::RngExt;
 use rand_chacha::ChaCha8Rng;
 
 use crate::robot::NUM_JOINTS;
-use crate::task::{CommandRanges, FeetAirTime, Randomization, TaskConfig, TaskMode, uniform};
+use crate::task::{
+    CommandRanges, FeetAirTime, Randomization, TaskConfig, TaskMode, heading_hold, uniform,
+};
 use crate::terrain::EpisodeDistance;
 
 use super::EnvId;
@@ -20,6 +24,9 @@ pub struct EnvState {
     pub mode: TaskMode,
     /// Velocity command (vx, vy in the heading frame, wz).
     pub command: [f32; 3],
+    /// The heading (rad, world) this command holds, if its draw holds one
+    /// (`commands.heading_share`): its wz then steers to it every step ([`Self::hold_heading`]).
+    pub held_heading: Option<f32>,
     /// Policy steps since the episode began.
     pub episode_step: u32,
     /// Actions a_t, a_{t-1}, a_{t-2} (clipped).
@@ -90,20 +97,41 @@ impl EnvState {
         let changed = self.mode != mode;
         self.mode = mode;
         match command {
-            Some(c) => self.command = c,
+            Some(c) => {
+                self.command = c;
+                self.held_heading = None;
+            }
             None if changed || redraw => self.sample_command(cfg),
             None => {}
         }
         changed
     }
 
-    /// Draw commands for the current mode.
+    /// Draw commands for the current mode, and whether they hold a heading. At
+    /// `heading_share` 0 no heading is drawn, so the random stream is the paper task's.
     pub fn sample_command(&mut self, cfg: &TaskConfig) {
-        let ranges = match self.mode {
+        let c = &cfg.commands;
+        self.command = sample_command(self.command_ranges(cfg), c.zero_below, &mut self.rng);
+        self.held_heading = None;
+        if c.heading_share > 0.0 && self.rng.random::<f32>() < c.heading_share {
+            self.held_heading = Some(uniform(&mut self.rng, [-PI, PI]));
+        }
+    }
+
+    /// Steer the yaw-rate command to the held heading from the body's heading `yaw` (rad),
+    /// if this command holds one (decision record 0042); otherwise leave it.
+    pub fn hold_heading(&mut self, cfg: &TaskConfig, yaw: f32) {
+        if let Some(target) = self.held_heading {
+            let range = self.command_ranges(cfg).wz;
+            self.command[2] = heading_hold(target, yaw, cfg.commands.heading_gain, range);
+        }
+    }
+
+    fn command_ranges<'a>(&self, cfg: &'a TaskConfig) -> &'a CommandRanges {
+        match self.mode {
             TaskMode::Biped => &cfg.commands.biped,
             TaskMode::Quad => &cfg.commands.quad,
-        };
-        self.command = sample_command(ranges, cfg.commands.zero_below, &mut self.rng);
+        }
     }
 
     /// Gait clock Phi in [0, 1) at the current step.

@@ -98,6 +98,14 @@ pub struct CommandParams {
     pub biped: CommandRanges,
     /// A command component whose magnitude is below this is set to 0. Default 0.1.
     pub zero_below: f32,
+    /// Share of command draws that hold a heading instead of a yaw rate: such a draw also takes
+    /// a heading uniform in [-pi, pi), and every step its yaw-rate command is `heading_gain`
+    /// times the turn to that heading, within the mode's wz range (legged_gym's
+    /// `heading_command`; decision record 0042). Default 0: the paper's yaw-rate commands.
+    pub heading_share: f32,
+    /// Yaw-rate command per radian off the held heading (1/s). Default 1, as the traversals
+    /// steer (decision record 0032).
+    pub heading_gain: f32,
 }
 
 impl Default for CommandParams {
@@ -115,6 +123,8 @@ impl Default for CommandParams {
                 wz: [-0.5, 0.5],
             },
             zero_below: 0.1,
+            heading_share: 0.0,
+            heading_gain: 1.0,
         }
     }
 }

@@ -88,6 +88,8 @@ impl TaskConfig {
             3600.0,
         )?;
         check("commands.zero_below", c.zero_below, 0.0, 10.0)?;
+        check("commands.heading_share", c.heading_share, 0.0, 1.0)?;
+        check("commands.heading_gain", c.heading_gain, 0.0, 100.0)?;
         for (mode, r) in [("quad", &c.quad), ("biped", &c.biped)] {
             check_range(&format!("commands.{mode}.vx"), r.vx, -10.0, 10.0)?;
             check_range(&format!("commands.{mode}.vy"), r.vy, -10.0, 10.0)?;

@@ -36,6 +36,25 @@ pub fn heading_direction(rot: Rotation) -> Vec2 {
     }
 }
 
+/// Heading angle (rad, world, counterclockwise from +x) of the body; see [`heading_direction`].
+pub fn heading_yaw(rot: Rotation) -> f32 {
+    let h = heading_direction(rot);
+    h.y.atan2(h.x)
+}
+
+/// The turn (rad, in [-pi, pi), counterclockwise positive) that takes heading `from` to `to`.
+pub fn angle_from(from: f32, to: f32) -> f32 {
+    use std::f32::consts::{PI, TAU};
+    (to - from + PI).rem_euclid(TAU) - PI
+}
+
+/// The yaw-rate command that steers heading `yaw` to `target` (rad): `gain` times the turn the
+/// short way round, within `range` (the mode's yaw-rate command range). The traversals steer
+/// with it (decision record 0032), and training can hold a drawn heading with it (0042).
+pub fn heading_hold(target: f32, yaw: f32, gain: f32, range: [f32; 2]) -> f32 {
+    (gain * angle_from(yaw, target)).clamp(range[0], range[1])
+}
+
 /// A world vector's xy part expressed in the heading frame (x along the heading).
 pub fn to_heading_frame(heading: Vec2, v: Vec3) -> Vec2 {
     Vec2::new(
@@ -47,6 +66,48 @@ pub fn to_heading_frame(heading: Vec2, v: Vec3) -> Vec2 {
 #[cfg(test)]
 mod test {
     use super::*;
+
+    #[test]
+    fn angles_between_headings_take_the_short_way_round() {
+        use std::f32::consts::PI;
+        let close = |a: f32, b: f32| assert!((a - b).abs() < 1e-5, "{a} vs {b}");
+        close(angle_from(0.0, 0.5), 0.5);
+        close(angle_from(0.5, 0.0), -0.5);
+        // From 170 deg to -170 deg is 20 deg counterclockwise, not 340 clockwise.
+        close(
+            angle_from(170f32.to_radians(), -170f32.to_radians()),
+            20f32.to_radians(),
+        );
+        close(angle_from(-3.0, 3.0), 6.0 - 2.0 * PI);
+    }
+
+    /// Gain 1: 0.3 rad off steers back at 0.3 rad/s; 2 rad off is clamped to the biped's 0.5;
+    /// an error past pi wraps to the short way round (3.0 - (-3.0) = 6.0 is -0.28 rad).
+    #[test]
+    fn the_heading_hold_steers_the_short_way_within_the_range() {
+        let close = |a: f32, b: f32| assert!((a - b).abs() < 1e-5, "{a} vs {b}");
+        let biped = [-0.5, 0.5];
+        close(heading_hold(0.0, -0.3, 1.0, biped), 0.3);
+        close(heading_hold(0.0, 0.3, 1.0, biped), -0.3);
+        close(heading_hold(0.0, 2.0, 1.0, biped), -0.5);
+        close(
+            heading_hold(3.0, -3.0, 1.0, [-1.0, 1.0]),
+            6.0 - std::f32::consts::TAU,
+        );
+        close(heading_hold(1.0, 1.0, 1.0, [-1.0, 1.0]), 0.0);
+        // A range that is not symmetric bounds each side by its own end.
+        close(heading_hold(0.0, 2.0, 1.0, [-0.2, 1.0]), -0.2);
+        assert_eq!(heading_hold(0.0, 0.4, 0.0, [-1.0, 1.0]), 0.0);
+    }
+
+    #[test]
+    fn the_heading_yaw_is_the_nose_on_four_legs_and_the_back_on_two() {
+        let turned = Rotation::from_rotation_z(0.8);
+        assert!((heading_yaw(turned) - 0.8).abs() < 1e-5);
+        // Pitched nose-down onto the front legs (the biped stance), the heading stays.
+        let biped = turned * Rotation::from_rotation_y(1.5);
+        assert!((heading_yaw(biped) - 0.8).abs() < 1e-4);
+    }
 
     #[test]
     fn pitch_is_positive_nose_down() {

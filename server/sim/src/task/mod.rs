@@ -18,7 +18,10 @@ pub use config::{
     RewardParams, RewardWeights, TaskConfig, UprightCurriculum,
 };
 pub use context::TaskContext;
-pub use frames::{euler_pitch, heading_direction, projected_gravity, to_heading_frame};
+pub use frames::{
+    angle_from, euler_pitch, heading_direction, heading_hold, heading_yaw, projected_gravity,
+    to_heading_frame,
+};
 pub use gait::{GaitCoefficients, VonMisesCdf, expected_indicators, gait_coefficients};
 pub use observation::{
     Field, LABEL_DIM, LABELS, OBS_DIM, OBSERVATION, PRIVILEGED, PRIVILEGED_DIM, noise_amplitudes,
