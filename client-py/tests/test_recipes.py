@@ -120,7 +120,7 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
         "unified_terrain"
     ).stages[18:26]
     late = load_recipe("unified_terrain").stages[26:]
-    clock, air_time, quad_swing, biped_forward, quad_pace_6, terrain_settle = late
+    clock, air_time, quad_swing, biped_forward, quad_pace_6, heading_hold, terrain_settle = late
     assert terrain.config.policy == settle.config.policy
     assert (
         terrain.config.env.task["rewards"]["weights"]
@@ -282,12 +282,20 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     weights = {**weights, "quad_tracking_lin_vel": 6.0}
     assert biped_forward.config.env.task["rewards"]["weights"]["quad_tracking_lin_vel"] == 4.0
     _changes_one_section(quad_pace_6, biped_forward, "rewards", {"weights": weights})
-    # The thirty-second settles with the flat recipe's fixed 3e-6 and checks M3 every 250.
-    assert terrain_settle.config.env == quad_pace_6.config.env and terrain_settle.carry == "all"
-    assert terrain_settle.config.ppo == dataclasses.replace(
-        quad_pace_6.config.ppo, schedule="fixed", learning_rate=3e-6
+    # The thirty-second holds a heading in half the command draws (decision 0042), nothing else.
+    before = quad_pace_6.config.env.task
+    assert "commands" not in before
+    assert heading_hold.config.env.task == {**before, "commands": {"heading_share": 0.5}}
+    assert heading_hold.config.env == dataclasses.replace(
+        quad_pace_6.config.env, task=heading_hold.config.env.task
     )
-    assert terrain_settle.config.policy == quad_pace_6.config.policy
+    assert heading_hold.config.ppo == quad_pace_6.config.ppo and heading_hold.carry == "all"
+    # The thirty-third settles with the flat recipe's fixed 3e-6 and checks M3 every 250.
+    assert terrain_settle.config.env == heading_hold.config.env and terrain_settle.carry == "all"
+    assert terrain_settle.config.ppo == dataclasses.replace(
+        heading_hold.config.ppo, schedule="fixed", learning_rate=3e-6
+    )
+    assert terrain_settle.config.policy == heading_hold.config.policy
     assert terrain_settle.stop.milestone == "M3" and terrain_settle.stop.check_every == 250
     # --set applies on top of every stage.
     small = load_recipe("unified_flat", ["env.num_envs=8"])
