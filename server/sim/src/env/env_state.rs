@@ -4,10 +4,12 @@ use std::f32::consts::PI;
 
 use rand::RngExt;
 use rand_chacha::ChaCha8Rng;
+use rapier3d::math::Rotation;
 
 use crate::robot::NUM_JOINTS;
 use crate::task::{
-    CommandRanges, FeetAirTime, Randomization, TaskConfig, TaskMode, heading_hold, uniform,
+    CommandRanges, FeetAirTime, Randomization, TaskConfig, TaskMode, heading_hold, heading_yaw,
+    uniform,
 };
 use crate::terrain::EpisodeDistance;
 
@@ -118,11 +120,12 @@ impl EnvState {
         }
     }
 
-    /// Steer the yaw-rate command to the held heading from the body's heading `yaw` (rad),
-    /// if this command holds one (decision record 0042); otherwise leave it.
-    pub fn hold_heading(&mut self, cfg: &TaskConfig, yaw: f32) {
+    /// Steer the yaw-rate command to the held heading from the body's orientation `rot`, if
+    /// this command holds one (decision record 0042); otherwise leave it (and skip the yaw).
+    pub fn hold_heading(&mut self, cfg: &TaskConfig, rot: Rotation) {
         if let Some(target) = self.held_heading {
             let range = self.command_ranges(cfg).wz;
+            let yaw = heading_yaw(rot);
             self.command[2] = heading_hold(target, yaw, cfg.commands.heading_gain, range);
         }
     }

@@ -12,8 +12,8 @@ use crate::physics::{ActuatorParams, PhysicsWorld, RobotState};
 use crate::robot::{NUM_FEET, NUM_JOINTS, RobotModel};
 use crate::task::{
     self, FeetAirTime, LABEL_DIM, OBS_DIM, PRIVILEGED_DIM, Randomization, RewardInputs, RewardTerm,
-    TaskContext, TaskMode, euler_pitch, gait_coefficients, heading_direction, heading_yaw,
-    projected_gravity, to_heading_frame, uniform,
+    TaskContext, TaskMode, euler_pitch, gait_coefficients, heading_direction, projected_gravity,
+    to_heading_frame, uniform,
 };
 use crate::terrain::{EpisodeDistance, Terrain};
 
@@ -256,7 +256,7 @@ impl EnvGroup {
         let s = &mut self.states[slot];
         self.world.read_kinematics(model, slot, s);
         s.clear_contacts();
-        env.hold_heading(cfg, heading_yaw(s.base_rot));
+        env.hold_heading(cfg, s.base_rot);
     }
 
     /// Reset every env and write the first observations.
@@ -293,7 +293,7 @@ impl EnvGroup {
     ) {
         let env = &mut self.envs[slot];
         env.enter_mode(&sh.ctx.config, mode, command, false);
-        env.hold_heading(&sh.ctx.config, heading_yaw(self.states[slot].base_rot));
+        env.hold_heading(&sh.ctx.config, self.states[slot].base_rot);
         rewrite_task_observation(sh, env, &mut out.obs[slot * OBS_DIM..(slot + 1) * OBS_DIM]);
         out.mode[slot] = env.mode as u8;
     }
@@ -480,7 +480,7 @@ impl EnvGroup {
                 env.mode
             };
             env.enter_mode(cfg, mode, None, step.is_multiple_of(ctx.command_interval));
-            env.hold_heading(cfg, heading_yaw(self.states[slot].base_rot));
+            env.hold_heading(cfg, self.states[slot].base_rot);
             if ctx.push_interval.is_some_and(|p| step.is_multiple_of(p)) {
                 let v = cfg.randomization.push_velocity;
                 let delta = Vec3::new(
