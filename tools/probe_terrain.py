@@ -14,11 +14,13 @@ same policy on flat ground (where the terrain costs it reward, and what it is pa
         assets/training/unified_terrain/01_terrain/model_latest.pt --terrain stairs_up \
         --levels 0 1 2 3 --mode quad --vx 0.5
 
-``--lift DELTA ...`` runs each level once per offset added to the calf actions of ``--legs``
-over each foot's clock swing window (a half sine, as ``probe_gait_clock.py --lift``): would a
-higher swing of those feet climb where the policy's own does not? Each run also reports the share
-of envs whose base got past the tile's edge (half a tile from where it stood): out of a
-stairs-up pit or up a slope-up pyramid.
+``--lift DELTA ...`` runs each level once per offset added to the ``--joint`` actions (calf or
+thigh) of ``--legs`` over each foot's clock swing window (a half sine, as ``probe_gait_clock.py
+--lift``): would a higher swing of those feet, or one reaching farther, climb where the policy's
+own does not? Each run also reports the share of envs whose base got past the tile's edge (half
+a tile from where it stood): out of a stairs-up pit or up a slope-up pyramid; the share that
+stopped there (their farthest reach within a step of the edge, standing at the end); and the
+collision term (thigh and calf contacts) per step of those that stopped and of the others.
 """
 
 from __future__ import annotations
@@ -42,6 +44,10 @@ MIN_PROMOTE_M = 2.0
 GAIT_PERIOD_S, GAIT_SWING_RATIO = 0.45, 0.4  # the task's [gait] defaults
 MAX_DRAWN = 64  # the envs a step returns poses of
 TILE_EDGE_M = 4.0  # half the default 8 m tile: the spawn point to the tile's edge
+# An env stopped at the tile's edge: its farthest reach within these bounds (m), standing at the
+# end. The top riser of a stairs-up pit is 0.3 m inside the edge, the next tile's first one
+# 0.3 m beyond it; a robot that crossed walks on for metres.
+STOPPED_AT_EDGE_M = (TILE_EDGE_M - 0.2, TILE_EDGE_M + 0.4)
 LEGS = {"front": ("FL", "FR"), "hind": ("RL", "RR"), "all": ("FL", "FR", "RL", "RR")}
 FOOT = {"FL": 0, "FR": 1, "RL": 2, "RR": 3}
 
@@ -69,12 +75,22 @@ class Rollout:
         terms: torch.Tensor,
         apex: torch.Tensor,
         reach: torch.Tensor,
+        collision: torch.Tensor,
     ) -> None:
         self.distance, self.estimated, self.fell, self.terms = distance, estimated, fell, terms
         self.apex = apex  # [4] the 90th percentile of each foot sole's height over the terrain
         # [min(N, 64)] the farthest each env's base got from where it stood after its first step
         # (m): what decision record 0038 judges, where `distance` counts turns in full.
         self.reach = reach
+        # [N] each env's collision term per step while it stood (the term as paid, weight and
+        # dt included): how much its thighs and calves touch the terrain.
+        self.collision = collision
+
+    def stopped_at_edge(self) -> torch.Tensor:
+        """[min(N, 64)] envs standing at the end whose farthest reach stayed at the tile's edge."""
+        lo, hi = STOPPED_AT_EDGE_M
+        standing = ~self.fell[: len(self.reach)]
+        return standing & (self.reach >= lo) & (self.reach <= hi)
 
 
 def rollout(
@@ -91,13 +107,14 @@ def rollout(
     extra_toml: str = "",
     lift: float = 0.0,
     legs: str = "all",
+    joint: str = "calf",
 ) -> tuple[Rollout, tuple[str, ...]]:
     """Run ``steps`` policy steps (no env survives past its first episode in the counts).
 
     ``sampled`` draws each action from the policy's Gaussian, as the training rollouts (and
     so the curriculum's promotions) do, instead of taking its mean. ``extra_toml`` is appended
     to the task overrides (tables the probe does not set itself, e.g. ``[rewards]``). ``lift``
-    is added to the calf actions of ``legs`` over each foot's clock swing window.
+    is added to the ``joint`` actions of ``legs`` over each foot's clock swing window.
     """
     policy, dims, engine = load_policy(checkpoint)
     noise = ActionNoise(checkpoint, sampled, seed)
@@ -118,6 +135,8 @@ def rollout(
     alive = torch.ones(envs, dtype=torch.bool)
     distance, estimated = torch.zeros(envs), torch.zeros(envs)
     terms = torch.zeros(len(env.spec.reward_terms))
+    collision_at = env.spec.reward_terms.index("collision")
+    collision, stood = torch.zeros(envs), torch.zeros(envs)
     counted = 0
     foot_height = env.spec.labels.slice("foot_height")
     heights = []
@@ -126,7 +145,10 @@ def rollout(
     reach = torch.zeros(len(drawn))
     spec = env.spec
     lifted = [
-        (FOOT[leg], next(i for i, n in enumerate(spec.joint_names) if n.startswith(f"{leg}_calf")))
+        (
+            FOOT[leg],
+            next(i for i, n in enumerate(spec.joint_names) if n.startswith(f"{leg}_{joint}")),
+        )
         for leg in LEGS[legs]
     ]
     clock = spec.obs.slice("clock")
@@ -135,8 +157,8 @@ def rollout(
     for _ in range(steps):
         with torch.no_grad():
             actions = noise(policy(history.flat.view(envs, 3, -1))).clone()
-        for foot, joint in lifted:
-            actions[:, joint] += lift * raise_by[:, foot]
+        for foot, index in lifted:
+            actions[:, index] += lift * raise_by[:, foot]
         out = env.step(actions, draw_envs=drawn)
         phase = clock_phase(out.obs[:, clock], before)
         before = out.obs[:, clock].clone()
@@ -158,13 +180,21 @@ def rollout(
         if out.reward_terms is not None and alive.any():
             terms += out.reward_terms[alive].sum(0)
             counted += int(alive.sum())
+            collision += torch.where(alive, out.reward_terms[:, collision_at], 0.0)
+            stood += alive.float()
         heights.append(out.labels[alive, foot_height])
         alive &= ~out.dones
     env.close()
     fell = ~alive
     apex = torch.cat(heights).quantile(0.9, dim=0)
-    rollout = Rollout(distance, estimated, fell, terms / max(counted, 1), apex, reach)
+    per_step = collision / stood.clamp(min=1.0)
+    rollout = Rollout(distance, estimated, fell, terms / max(counted, 1), apex, reach, per_step)
     return rollout, env.spec.reward_terms
+
+
+def mean_or_nan(x: torch.Tensor) -> float:
+    """The mean, or NaN for no envs."""
+    return float(x.mean()) if len(x) else float("nan")
 
 
 def main() -> None:
@@ -180,8 +210,9 @@ def main() -> None:
     p.add_argument("--seed", type=int, default=5)
     p.add_argument("--terms", type=int, default=6, help="reward terms listed per level")
     p.add_argument("--sampled", action="store_true", help="actions drawn with the policy's std")
-    p.add_argument("--lift", type=float, nargs="+", default=[0.0], help="calf action offsets")
-    p.add_argument("--legs", choices=sorted(LEGS), default="all", help="whose calves --lift moves")
+    p.add_argument("--lift", type=float, nargs="+", default=[0.0], help="action offsets (rad)")
+    p.add_argument("--legs", choices=sorted(LEGS), default="all", help="whose joints --lift moves")
+    p.add_argument("--joint", choices=["calf", "thigh"], default="calf", help="which --lift moves")
     p.add_argument(
         "--task-toml",
         default="",
@@ -209,6 +240,7 @@ def main() -> None:
                 extra,
                 lift,
                 a.legs,
+                a.joint,
             )
 
         flat, names = run("flat", 0)
@@ -227,14 +259,20 @@ def main() -> None:
             listed = ", ".join(
                 f"{names[i]} {r.terms[i]:+.4f} ({delta[i]:+.4f})" for i in worst.tolist()
             )
-            lifted = f" lift {lift:+.1f} ({a.legs})" if len(a.lift) > 1 or lift else ""
+            lifted = f" lift {lift:+.2f} ({a.legs} {a.joint})" if len(a.lift) > 1 or lift else ""
+            stopped = r.stopped_at_edge()
+            others = ~stopped & ~r.fell[: len(stopped)]
+            drawn_collision = r.collision[: len(stopped)]
             print(
                 f"{a.terrain} level {level}{lifted}: walked {walked.mean():+.2f} m "
                 f"(quartiles {walked.quantile(0.25):+.2f} / {walked.median():+.2f} / "
                 f"{walked.quantile(0.75):+.2f}; estimated {r.estimated.mean():+.2f}), "
                 f"reach {r.reach.mean():.2f} m (quartiles {r.reach.quantile(0.25):.2f} / "
                 f"{r.reach.median():.2f} / {r.reach.quantile(0.75):.2f}; past the tile's edge "
-                f"{(r.reach >= TILE_EDGE_M).float().mean():.2f}), "
+                f"{(r.reach >= TILE_EDGE_M).float().mean():.2f}, stopped there "
+                f"{stopped.float().mean():.2f}), collision per step stopped "
+                f"{mean_or_nan(drawn_collision[stopped]):+.4f}, the others "
+                f"{mean_or_nan(drawn_collision[others]):+.4f}, "
                 f"promoted {(walked > promote_m).float().mean():.2f}, "
                 f"demoted {(walked < DEMOTE * commanded).float().mean():.2f}, "
                 f"fell {r.fell.float().mean():.2f}, feet's 90th percentile height "
