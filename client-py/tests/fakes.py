@@ -255,7 +255,11 @@ class FakeSimulator(pb_grpc.SimulatorServicer):
             context.abort(grpc.StatusCode.INVALID_ARGUMENT, "policy_onnx is empty")
         self.evaluated.append((request.scenario, request.seed, request.num_envs))
         self.evaluated_overrides.append(request.task_overrides_toml)
-        metrics = {"policy_bytes": float(len(request.policy_onnx)), "num_envs": request.num_envs}
+        metrics = {
+            "policy_bytes": float(len(request.policy_onnx)),
+            "num_envs": request.num_envs,
+            "seed": float(request.seed),
+        }
         return pb.EvaluateResponse(
             metrics=metrics,
             report_json=json.dumps(

@@ -297,6 +297,9 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     )
     assert terrain_settle.config.policy == heading_hold.config.policy
     assert terrain_settle.stop.milestone == "M3" and terrain_settle.stop.check_every == 250
+    # Both confirm a met M3 on a second validation seed; the stages before stop on one.
+    assert heading_hold.stop.confirm_seed == terrain_settle.stop.confirm_seed == 2001
+    assert quad_pace_6.stop.confirm_seed is None
     # --set applies on top of every stage.
     small = load_recipe("unified_flat", ["env.num_envs=8"])
     assert [s.config.env.num_envs for s in small.stages] == [8, 8, 8]
@@ -435,6 +438,58 @@ bound = 5
         json.loads(x) for x in (run / "02_second" / "validation.jsonl").read_text().split("\n") if x
     ]
     assert record["criteria_met"] == 1 and record["iteration"] == 4 and record["unmet"] == []
+
+
+def test_a_confirm_seed_stops_a_stage_only_when_both_seeds_meet_the_milestone(
+    fake_server, tmp_path, monkeypatch
+):
+    address, servicer = fake_server
+    milestones = tmp_path / "milestones.toml"
+    # The fake server reports the seed as a metric: met on seeds up to 100.
+    milestones.write_text(
+        """[T]
+description = "test"
+scenarios = ["flat_quad"]
+[[T.checks]]
+label = "seed"
+scenario = "flat_quad"
+metric = "seed"
+op = "<="
+bound = 100
+"""
+    )
+    monkeypatch.setattr(milestones_module, "milestones_file", lambda: milestones)
+
+    def run_with(confirm_seed: int, name: str) -> tuple[dict[str, Any], list[tuple[int, int]]]:
+        stop = 'iterations = 5\nmilestone = "T"\ncheck_every = 2\nvalidation_envs = 3\n'
+        stop += f"validation_seed = 77\nconfirm_seed = {confirm_seed}"
+        recipe = two_stages(tmp_path, stop)
+        run = tmp_path / name
+        command = ["train", "--server", address, "--recipe", str(recipe), "--log-dir", str(run)]
+        assert main(command) == 0
+        done = json.loads((run / "02_second" / "done.json").read_text())
+        lines = (run / "02_second" / "validation.jsonl").read_text().split("\n")
+        records = [json.loads(x) for x in lines if x]
+        return done, [(r["iteration"], r["seed"]) for r in records]
+
+    # Met on 77, not on 500: every check is confirmed and fails, and the stage runs its length.
+    done, checks = run_with(500, "unconfirmed")
+    assert done["reason"] == "iterations" and done["stage_iterations"] == 5
+    assert checks == [(4, 77), (4, 500), (6, 77), (6, 500)]
+    # Met on both: the first check stops it, both records kept.
+    done, checks = run_with(78, "confirmed")
+    assert done["reason"] == "milestone T met on seed 77 and 78"
+    assert done["stage_iterations"] == 2 and checks == [(4, 77), (4, 78)]
+    assert ("flat_quad", 78, 3) in servicer.evaluated
+
+
+def test_a_confirm_seed_needs_a_milestone_and_another_seed(tmp_path):
+    no_milestone = two_stages(tmp_path, "iterations = 5\nconfirm_seed = 2001")
+    with pytest.raises(RecipeError, match="confirm_seed confirms a milestone"):
+        load_recipe(str(no_milestone))
+    same = two_stages(tmp_path, 'iterations = 5\nmilestone = "M2"\nconfirm_seed = 2000')
+    with pytest.raises(RecipeError, match="must differ from validation_seed"):
+        load_recipe(str(same))
 
 
 def test_log_directories_are_not_mixed(fake_server, tmp_path, capsys):

@@ -35,6 +35,21 @@ pub struct StopRule {
     /// Envs per scenario of the milestone checks.
     #[serde(default = "default_validation_envs")]
     pub validation_envs: u32,
+    /// A second validation seed: a check met on `validation_seed` is judged again on this one,
+    /// and the stage stops only if both are met (a milestone of few trials is met by one lucky
+    /// draw far more often than by two independent ones).
+    #[serde(default)]
+    pub confirm_seed: Option<u64>,
+}
+
+impl StopRule {
+    /// The seeds a milestone check judges the policy on, in order; each is judged only if the
+    /// one before met the milestone.
+    pub fn check_seeds(&self) -> Vec<u64> {
+        std::iter::once(self.validation_seed)
+            .chain(self.confirm_seed)
+            .collect()
+    }
 }
 
 fn default_check_every() -> u64 {
@@ -294,6 +309,16 @@ fn load(name_or_path: &str, dir: &Path, seen: &mut Vec<String>) -> Result<Recipe
                 "{here} [stages.stop]: iterations and check_every must be >= 1"
             )));
         }
+        if stop.confirm_seed.is_some() && stop.milestone.is_none() {
+            return Err(RecipeError(format!(
+                "{here} [stages.stop]: confirm_seed confirms a milestone: give one"
+            )));
+        }
+        if stop.confirm_seed == Some(stop.validation_seed) {
+            return Err(RecipeError(format!(
+                "{here} [stages.stop]: confirm_seed must differ from validation_seed"
+            )));
+        }
         stages.push(Stage {
             index: i,
             name: s.name.clone(),
@@ -413,6 +438,36 @@ mod tests {
                 load_recipe(p.to_str().unwrap(), &dir).unwrap_or_else(|e| panic!("{e}"));
             }
         }
+    }
+
+    #[test]
+    fn a_confirm_seed_is_checked_after_the_validation_seed() {
+        let d = tmp("confirm");
+        let stage = "[[stages]]\nname = \"a\"\n[stages.stop]\niterations = 4\n";
+        write(
+            &d,
+            "both",
+            &format!("{stage}milestone = \"M1\"\nvalidation_seed = 7\nconfirm_seed = 8\n"),
+        );
+        let rule = &load_recipe("both", &d).unwrap().stages[0].stop;
+        assert_eq!(rule.confirm_seed, Some(8));
+        assert_eq!(rule.check_seeds(), [7, 8]);
+        write(&d, "one", &format!("{stage}milestone = \"M1\"\n"));
+        assert_eq!(
+            load_recipe("one", &d).unwrap().stages[0].stop.check_seeds(),
+            [2000]
+        );
+        write(&d, "bare", &format!("{stage}confirm_seed = 8\n"));
+        let e = load_recipe("bare", &d).unwrap_err().0;
+        assert!(e.contains("confirms a milestone"), "{e}");
+        write(
+            &d,
+            "same",
+            &format!("{stage}milestone = \"M1\"\nconfirm_seed = 2000\n"),
+        );
+        let e = load_recipe("same", &d).unwrap_err().0;
+        assert!(e.contains("must differ from validation_seed"), "{e}");
+        let _ = std::fs::remove_dir_all(&d);
     }
 
     #[test]

@@ -397,46 +397,54 @@ async fn train_stage(
             save(&learner)?;
         }
         if let Some(m) = check {
-            // The stage's stop rule: the current policy on the validation seed, as the
-            // Python learner's recipe runner judges it (validation.jsonl has the same rows).
+            // The stage's stop rule: the current policy on the validation seed (and, once met
+            // there, on the confirm seed), as the Python learner's recipe runner judges it
+            // (validation.jsonl has the same rows).
             let onnx = policy_onnx(&learner)?;
-            let evals = milestone::evaluate(
-                client,
-                m,
-                &onnx,
-                rule.validation_envs,
-                rule.validation_seed,
-                &engine_overrides(&learner.physics_engine),
-            )
-            .await?;
-            let met = m.score(&evals);
-            let record = json!({
-                "iteration": learner.iteration,
-                "milestone": m.name,
-                "criteria_met": met,
-                "criteria": m.criteria(),
-                "unmet": m.unmet(&evals),
-                "seed": rule.validation_seed,
-                "evals": evals,
-            });
-            let mut f = std::fs::OpenOptions::new()
-                .create(true)
-                .append(true)
-                .open(stage_dir.join("validation.jsonl"))?;
-            writeln!(f, "{record}")?;
-            tracing::info!(
-                "stage {}: iteration {}: {} {met}/{} on seed {}",
-                stage.dir_name(),
-                learner.iteration,
-                m.name,
-                m.criteria(),
-                rule.validation_seed
-            );
-            for unmet in m.unmet(&evals) {
-                tracing::info!("  unmet: {unmet}");
+            let seeds = rule.check_seeds();
+            let mut met_on = Vec::new();
+            for &seed in &seeds {
+                let evals = milestone::evaluate(
+                    client,
+                    m,
+                    &onnx,
+                    rule.validation_envs,
+                    seed,
+                    &engine_overrides(&learner.physics_engine),
+                )
+                .await?;
+                let met = m.score(&evals);
+                let record = json!({
+                    "iteration": learner.iteration,
+                    "milestone": m.name,
+                    "criteria_met": met,
+                    "criteria": m.criteria(),
+                    "unmet": m.unmet(&evals),
+                    "seed": seed,
+                    "evals": evals,
+                });
+                let mut f = std::fs::OpenOptions::new()
+                    .create(true)
+                    .append(true)
+                    .open(stage_dir.join("validation.jsonl"))?;
+                writeln!(f, "{record}")?;
+                tracing::info!(
+                    "stage {}: iteration {}: {} {met}/{} on seed {seed}",
+                    stage.dir_name(),
+                    learner.iteration,
+                    m.name,
+                    m.criteria(),
+                );
+                for unmet in m.unmet(&evals) {
+                    tracing::info!("  unmet: {unmet}");
+                }
+                if !m.met(&evals) {
+                    break;
+                }
+                met_on.push(seed.to_string());
             }
-            if m.met(&evals) {
-                reason = format!("milestone {} met on seed {}", m.name, rule.validation_seed);
+            if met_on.len() == seeds.len() {
+                reason = format!("milestone {} met on seed {}", m.name, met_on.join(" and "));
                 break;
             }
         }

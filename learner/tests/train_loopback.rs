@@ -276,7 +276,7 @@ fn trains_resumes_and_exports_against_the_real_server() {
 
 /// A stage with a milestone judges its policy on the validation seed every `check_every`
 /// iterations and writes the record (an untrained policy does not meet M1: the stage runs out
-/// its iterations).
+/// its iterations, and its confirm seed is never asked).
 #[test]
 fn a_milestone_stage_checks_on_the_validation_seed() {
     let bin = server_binary(None);
@@ -289,6 +289,7 @@ fn a_milestone_stage_checks_on_the_validation_seed() {
         &file,
         "milestone = \"M1\"\n[[stages]]\nname = \"quad\"\n[stages.stop]\niterations = 2\n\
          milestone = \"M1\"\ncheck_every = 1\nvalidation_envs = 2\nvalidation_seed = 9\n\
+         confirm_seed = 10\n\
          [stages.env]\nnum_envs = 16\n[stages.task.modes]\nbiped_probability = 0.0\n",
     )
     .unwrap();

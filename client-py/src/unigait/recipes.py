@@ -16,6 +16,7 @@ A recipe is a TOML file (home: ``assets/recipes/``; the package carries them)::
     [stages.stop]
     iterations = 6000             # the stage's length (its upper bound with a milestone)
     milestone = "M2"              # optional: stop early once met on the validation seed
+    confirm_seed = 2001           # optional: ... and met again on this seed
     [stages.env]
     num_envs = 512
     [stages.task.rewards.weights] # the task config's overrides, as real tables
@@ -57,7 +58,14 @@ _STAGE_KEYS = {
     "estimator",
     "runner",
 }
-_STOP_KEYS = {"iterations", "milestone", "check_every", "validation_seed", "validation_envs"}
+_STOP_KEYS = {
+    "iterations",
+    "milestone",
+    "check_every",
+    "validation_seed",
+    "validation_envs",
+    "confirm_seed",
+}
 #: Config sections a stage may set (``task`` goes into ``env.task``).
 _SECTIONS = ("env", "policy", "ppo", "estimator", "runner")
 
@@ -76,6 +84,10 @@ class StopRule:
         check_every: Iterations between milestone checks.
         validation_seed: Seed of the milestone checks (never an evaluation seed).
         validation_envs: Envs per scenario of the milestone checks.
+        confirm_seed: A second validation seed: a check met on ``validation_seed`` is judged
+            again on this one, and the stage stops only if both are met. A milestone of few
+            trials (Table VI's 20 a column) is met by one lucky draw far more often than by two
+            independent ones.
     """
 
     iterations: int
@@ -83,6 +95,7 @@ class StopRule:
     check_every: int = 100
     validation_seed: int = 2000
     validation_envs: int = 64
+    confirm_seed: int | None = None
 
 
 @dataclass(frozen=True)
@@ -155,6 +168,10 @@ def _stop_rule(raw: Any, where: str) -> StopRule:
     rule = StopRule(**raw)
     if rule.iterations < 1 or rule.check_every < 1:
         raise RecipeError(f"{where} [stages.stop]: iterations and check_every must be >= 1")
+    if rule.confirm_seed is not None and rule.milestone is None:
+        raise RecipeError(f"{where} [stages.stop]: confirm_seed confirms a milestone: give one")
+    if rule.confirm_seed == rule.validation_seed:
+        raise RecipeError(f"{where} [stages.stop]: confirm_seed must differ from validation_seed")
     return rule
 
 
@@ -300,8 +317,11 @@ def describe(recipe: Recipe) -> str:
         after = _shown(stage.config)
         stop = f"{stage.stop.iterations} iterations"
         if stage.stop.milestone:
+            seeds = f"seed {stage.stop.validation_seed}"
+            if stage.stop.confirm_seed is not None:
+                seeds = f"seeds {stage.stop.validation_seed} and {stage.stop.confirm_seed}"
             stop = (
-                f"milestone {stage.stop.milestone} met on seed {stage.stop.validation_seed} "
+                f"milestone {stage.stop.milestone} met on {seeds} "
                 f"(checked every {stage.stop.check_every}), at most {stop}"
             )
         start = stage.start if stage.start in ("fresh", "previous") else f"from {stage.start}"

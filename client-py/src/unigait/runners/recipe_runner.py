@@ -89,6 +89,19 @@ def prepare_log_dir(
     )
 
 
+def _log_check(
+    stage: Stage, stage_dir: Path, record: dict[str, Any], log: Callable[[str], None]
+) -> None:
+    """Append a milestone check to the stage's ``validation.jsonl`` and log it."""
+    with (stage_dir / "validation.jsonl").open("a") as f:
+        f.write(json.dumps(record) + "\n")
+    log(
+        f"stage {stage.dir_name}: iteration {record['iteration']}: {record['milestone']} "
+        f"{record['criteria_met']}/{record['criteria']} on seed {record['seed']}"
+        + "".join(f"\n  unmet: {u}" for u in record["unmet"])
+    )
+
+
 def _evaluate_milestone(
     runner: OnPolicyRunner, stage: Stage, address: str, connection: ConnectionOptions
 ) -> tuple[bool, dict[str, Any]]:
@@ -292,13 +305,17 @@ def run_stage(
             met = False
             if rule.milestone and (runner.iteration - start_iteration) % rule.check_every == 0:
                 met, record = _evaluate_milestone(runner, stage, addresses[0], connection)
-                with (stage_dir / "validation.jsonl").open("a") as f:
-                    f.write(json.dumps(record) + "\n")
-                log(
-                    f"stage {stage.dir_name}: iteration {runner.iteration}: {record['milestone']} "
-                    f"{record['criteria_met']}/{record['criteria']} on seed {record['seed']}"
-                    + "".join(f"\n  unmet: {u}" for u in record["unmet"])
-                )
+                _log_check(stage, stage_dir, record, log)
+                if met and rule.confirm_seed is not None:
+                    met, confirmed = evaluate_milestone(
+                        runner,
+                        rule.milestone,
+                        rule.validation_envs,
+                        rule.confirm_seed,
+                        addresses[0],
+                        connection,
+                    )
+                    _log_check(stage, stage_dir, confirmed, log)
             own = view is not None and view_every and runner.iteration % view_every == 0
             if view is not None and own and record is None:  # the view's own evaluation
                 t = view.target
@@ -316,6 +333,8 @@ def run_stage(
         reason = "iterations"
         if runner.iteration < target:
             reason = f"milestone {rule.milestone} met on seed {rule.validation_seed}"
+            if rule.confirm_seed is not None:
+                reason += f" and {rule.confirm_seed}"
         _write_json(
             stage_dir / DONE_FILE,
             {
