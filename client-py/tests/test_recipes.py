@@ -403,25 +403,32 @@ def test_a_recipe_runs_every_stage_records_it_and_a_second_call_finds_it_done(
     assert "ended before" in capsys.readouterr().err
 
 
+def one_check_milestone(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, metric: str, op: str, bound: float
+) -> None:
+    """Milestone T: one check of the fake server's ``metric`` on flat_quad, in place of the file."""
+    milestones = tmp_path / "milestones.toml"
+    milestones.write_text(
+        f"""[T]
+description = "test"
+scenarios = ["flat_quad"]
+[[T.checks]]
+label = "{metric}"
+scenario = "flat_quad"
+metric = "{metric}"
+op = "{op}"
+bound = {bound}
+"""
+    )
+    monkeypatch.setattr(milestones_module, "milestones_file", lambda: milestones)
+
+
 def test_a_stage_stops_once_its_milestone_is_met_on_the_validation_seed(
     fake_server, tmp_path, monkeypatch
 ):
     address, servicer = fake_server
-    milestones = tmp_path / "milestones.toml"
     # The fake server reports num_envs as a metric: met once asked with 5 envs or more.
-    milestones.write_text(
-        """[T]
-description = "test"
-scenarios = ["flat_quad"]
-[[T.checks]]
-label = "envs"
-scenario = "flat_quad"
-metric = "num_envs"
-op = ">="
-bound = 5
-"""
-    )
-    monkeypatch.setattr(milestones_module, "milestones_file", lambda: milestones)
+    one_check_milestone(tmp_path, monkeypatch, "num_envs", ">=", 5)
     stop = 'iterations = 9\nmilestone = "T"\ncheck_every = 2\nvalidation_envs = 5\n'
     stop += "validation_seed = 77"
     recipe = two_stages(tmp_path, stop)
@@ -444,21 +451,8 @@ def test_a_confirm_seed_stops_a_stage_only_when_both_seeds_meet_the_milestone(
     fake_server, tmp_path, monkeypatch
 ):
     address, servicer = fake_server
-    milestones = tmp_path / "milestones.toml"
     # The fake server reports the seed as a metric: met on seeds up to 100.
-    milestones.write_text(
-        """[T]
-description = "test"
-scenarios = ["flat_quad"]
-[[T.checks]]
-label = "seed"
-scenario = "flat_quad"
-metric = "seed"
-op = "<="
-bound = 100
-"""
-    )
-    monkeypatch.setattr(milestones_module, "milestones_file", lambda: milestones)
+    one_check_milestone(tmp_path, monkeypatch, "seed", "<=", 100)
 
     def run_with(confirm_seed: int, name: str) -> tuple[dict[str, Any], list[tuple[int, int]]]:
         stop = 'iterations = 5\nmilestone = "T"\ncheck_every = 2\nvalidation_envs = 3\n'
