@@ -7,7 +7,7 @@ from test_cli import SMALL
 
 from unigait.cli import main
 from unigait.milestones import milestone
-from unigait.selection import recent_checkpoints
+from unigait.selection import Candidate, SeedScore, describe, rank, recent_checkpoints
 
 
 def test_milestone_score_counts_criteria_and_sums_clipped_relative_margins():
@@ -41,6 +41,24 @@ def test_recent_checkpoints_are_the_highest_iterations_in_order(tmp_path):
     assert recent_checkpoints(tmp_path, 0) == []
 
 
+def test_rank_puts_seeds_fully_met_before_criteria_summed_over_seeds(tmp_path):
+    def candidate(iteration: int, *scores: tuple[int, float]) -> Candidate:
+        per_seed = tuple(SeedScore(2000 + i, m, g) for i, (m, g) in enumerate(scores))
+        return Candidate(tmp_path / f"model_{iteration}.pt", iteration, per_seed)
+
+    lucky = candidate(100, (8, 2.0), (6, 0.5))  # 14 criteria, met on one seed
+    steady = candidate(200, (7, 1.0), (7, 1.0))  # 14 criteria, on neither
+    confirmed = candidate(300, (8, 0.1), (8, 0.1))  # both seeds
+    close = candidate(400, (8, 1.9), (6, 0.6))  # as lucky, a larger margin
+    ranked = rank([lucky, steady, confirmed, close], criteria=8)
+    assert [c.iteration for c in ranked] == [300, 400, 100, 200]
+    assert (confirmed.met, confirmed.margin, confirmed.seeds_met(8)) == (16, 0.2, 2)
+    text = describe(ranked, milestone("M3"), 20)
+    assert "on validation seeds 2000 + 2001 (20 envs per scenario)" in text
+    assert "100: 8/8 + 6/8 (+2.50), 200: 7/8 + 7/8 (+2.00), 300: 8/8 + 8/8 (+0.20)" in text
+    assert "Iteration 300 ranked first" in text
+
+
 def test_ship_chooses_on_the_validation_seed_and_reports_on_the_evaluation_seed(
     fake_server, tmp_path, capsys
 ):
@@ -67,6 +85,16 @@ def test_ship_chooses_on_the_validation_seed_and_reports_on_the_evaluation_seed(
     # The fake server's figures are the same for both: the later checkpoint wins the tie.
     assert "last 2 checkpoints on validation seed 7 (12 envs per scenario)" in card
     assert "2: 0/7 (-7.00), 3: 0/7 (-7.00). Iteration 3 ranked first" in card
+    # Two validation seeds: every candidate on each, then the chosen one on the evaluation seed.
+    servicer.evaluated.clear()
+    two = ["--select-last", "2", "--select-seed", "7", "--select-seed", "8"]
+    assert main([*ship, *two, "--eval-seed", "1000"]) == 0
+    assert servicer.evaluated == (
+        [(s, 7, 4) for s in scenarios] + [(s, 8, 4) for s in scenarios]
+    ) * 2 + [(s, 1000, 4) for s in scenarios]
+    card = (tmp_path / "policies" / "u" / "MODEL_CARD.md").read_text()
+    assert "on validation seeds 7 + 8 (4 envs per scenario)" in card
+    assert "2: 0/7 + 0/7 (-14.00), 3: 0/7 + 0/7 (-14.00)" in card
     folder = tmp_path / "policies" / "u"
     # Every scenario's full report is in the folder; reports made beside ship stay with the
     # checkpoint they describe.
@@ -87,5 +115,6 @@ def test_ship_chooses_on_the_validation_seed_and_reports_on_the_evaluation_seed(
     capsys.readouterr()
     # The validation seed must not be the evaluation seed, and a given checkpoint is not chosen.
     assert main([*ship, "--select-last", "2", "--select-seed", "1000"]) == 2
+    assert main([*ship, "--select-last", "2", "--select-seed", "7", "--select-seed", "1000"]) == 2
     assert main([*ship, "--select-last", "2", "--checkpoint", str(run / "model_2.pt")]) == 2
     assert "--select-last chooses the checkpoint" in capsys.readouterr().err

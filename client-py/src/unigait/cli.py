@@ -387,9 +387,10 @@ def _ship(args: argparse.Namespace) -> int:
     from unigait.selection import describe, select_checkpoint
     from unigait.ship import run_folder, ship
 
-    if args.select_last > 0 and (args.checkpoint or args.select_seed == args.eval_seed):
+    select_seeds = list(dict.fromkeys(args.select_seed or [2000]))
+    if args.select_last > 0 and (args.checkpoint or args.eval_seed in select_seeds):
         print(
-            "error: --select-last chooses the checkpoint (no --checkpoint) on a seed other "
+            "error: --select-last chooses the checkpoint (no --checkpoint) on seeds other "
             "than --eval-seed",
             file=sys.stderr,
         )
@@ -415,11 +416,11 @@ def _ship(args: argparse.Namespace) -> int:
                 milestones[0],
                 addresses[0],
                 args.select_last,
-                args.select_seed,
+                select_seeds,
                 select_envs,
             )
             checkpoint = ranked[0].path
-            selection = describe(ranked, milestones[0], args.select_seed, select_envs)
+            selection = describe(ranked, milestones[0], select_envs)
             print(selection)
         folder = ship(
             Path(args.run_dir),
@@ -703,7 +704,14 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="N",
         help="ship the best of the run's last N checkpoints, judged on --select-seed",
     )
-    s.add_argument("--select-seed", type=int, default=2000, help="validation seed of --select-last")
+    s.add_argument(
+        "--select-seed",
+        type=int,
+        action="append",
+        metavar="SEED",
+        help="validation seed of --select-last (default 2000); repeat it to judge each candidate "
+        "on several, ranked first by the seeds on which it meets the milestone",
+    )
     s.add_argument(
         "--select-envs",
         type=int,
