@@ -10,7 +10,7 @@ from typing import Any
 import pytest
 
 from unigait.cli import main
-from unigait.trial_table import TrialTableError, read_trials, trial_tables
+from unigait.trial_table import TrialTableError, friction_tables, read_trials, trial_tables
 
 
 def _trial(case: str, env: int, end: str, progress: float, **more: float) -> dict[str, Any]:
@@ -110,3 +110,32 @@ def test_the_command_prints_the_tables_and_exits_2_on_a_bad_report(
     assert out.startswith("### stairs_up_quad: 1 of 4 crossed")
     assert main(["trials", str(tmp_path / "missing.json")]) == 2
     assert "missing.json" in capsys.readouterr().err
+
+
+def test_by_friction_counts_each_cases_crossings_in_friction_bins(tmp_path: Path) -> None:
+    slope = [
+        _trial("up_forward", 0, "timed_out", 1.8, contact_friction=0.61),
+        _trial("up_forward", 1, "crossed", 4.5, contact_friction=0.64),
+        _trial("up_forward", 2, "timed_out", 2.0, contact_friction=0.75),
+        _trial("up_forward", 3, "crossed", 4.5, contact_friction=1.0),  # an edge opens its bin
+        _trial("up_forward", 4, "crossed", 4.5, contact_friction=1.27),
+        _trial("up_backward", 0, "crossed", 4.5, contact_friction=0.66),
+    ]
+    stairs = [_trial("forward", 0, "crossed", 4.5)]
+    path = tmp_path / "r.json"
+    report = {"parts": [_traversal("slope_biped", slope), _traversal("stairs_up_quad", stairs)]}
+    path.write_text(json.dumps(report))
+    assert friction_tables(read_trials(path)) == (
+        "### slope_biped: crossed / trials by contact friction\n\n"
+        "| case | < 0.65 | 0.65-0.70 | 0.70-0.80 | 0.80-0.90 | 0.90-1.00 | >= 1.00 |\n"
+        "| --- | --- | --- | --- | --- | --- | --- |\n"
+        "| up_forward | 1/2 | - | 0/1 | - | - | 2/2 |\n"
+        "| up_backward | - | 1/1 | - | - | - | - |\n"
+        "\n"
+        "### stairs_up_quad: crossed / trials by contact friction\n\n"
+        "| case | < 0.65 | 0.65-0.70 | 0.70-0.80 | 0.80-0.90 | 0.90-1.00 | >= 1.00 |\n"
+        "| --- | --- | --- | --- | --- | --- | --- |\n"
+        "| forward | - | - | - | 1/1 | - | - |\n"
+        "\n"
+    )
+    assert main(["trials", "--by-friction", str(path)]) == 0

@@ -491,10 +491,14 @@ def _checks(args: argparse.Namespace) -> int:
 
 
 def _trials(args: argparse.Namespace) -> int:
-    from unigait.trial_table import TrialTableError, read_trials, trial_tables
+    from unigait.trial_table import TrialTableError, friction_tables, read_trials, trial_tables
 
     try:
-        print(trial_tables(read_trials(Path(args.report)), everything=args.all), end="")
+        trials = read_trials(Path(args.report))
+        if args.by_friction:
+            print(friction_tables(trials), end="")
+        else:
+            print(trial_tables(trials, everything=args.all), end="")
     except TrialTableError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
@@ -751,6 +755,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     r.add_argument("report", help="a JSON report of evaluate --report (or ship's)")
     r.add_argument("--all", action="store_true", help="every trial, not only those that failed")
+    r.add_argument(
+        "--by-friction",
+        action="store_true",
+        help="each case's trials crossed / run by the friction of their contacts",
+    )
     r.set_defaults(func=_trials)
 
     mujoco_cli.register(sub)  # sim2sim, crosscheck, mujoco-bench: MuJoCo imported on use

@@ -4,13 +4,15 @@
 along its course, where it stood across the course and which way it faced at the end, when it
 ended and the friction of its contacts. ``python -m unigait trials R.json`` lays them out as one
 Markdown table per scenario (a ``table_vi`` report holds one per column), the trials that did not
-cross by default, every trial with ``--all``. A trial's number is the one ``evaluate
+cross by default, every trial with ``--all``; ``--by-friction`` counts each case's crossings by
+the friction of its contacts instead. A trial's number is the one ``evaluate
 --record-env`` takes with the report's own scenario, seed and trials: its place in the report's
 list, across the cases and, in a ``table_vi`` report, across the columns.
 """
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 from dataclasses import dataclass
@@ -97,5 +99,46 @@ def trial_tables(trials: list[Trial], everything: bool = False) -> str:
         for t in shown:
             cells = [_cell(t.outcome, key, t.number) for key, _ in COLUMNS]
             out.append("| " + " | ".join(cells) + " |\n")
+        out.append("\n")
+    return "".join(out)
+
+
+# Contact-friction bins of ``--by-friction``. A 30 deg slope holds a standing robot only above
+# tan 30 deg = 0.58, and Table V's friction averaged with the ground's starts at 0.6 (decision
+# record 0034): the lowest bins are where a climb has almost no grip to spare.
+FRICTION_EDGES = (0.65, 0.7, 0.8, 0.9, 1.0)
+
+
+def _friction_labels() -> list[str]:
+    edges = FRICTION_EDGES
+    middle = [f"{lo:.2f}-{hi:.2f}" for lo, hi in itertools.pairwise(edges)]
+    return [f"< {edges[0]:.2f}", *middle, f">= {edges[-1]:.2f}"]
+
+
+def _friction_bin(friction: float) -> int:
+    return sum(friction >= edge for edge in FRICTION_EDGES)
+
+
+def friction_tables(trials: list[Trial]) -> str:
+    """One Markdown table per scenario: each case's trials crossed / run, by contact friction."""
+    labels = _friction_labels()
+    out: list[str] = []
+    for scenario in dict.fromkeys(t.scenario for t in trials):
+        mine = [t for t in trials if t.scenario == scenario]
+        out.append(f"### {scenario}: crossed / trials by contact friction\n\n")
+        out.append("| case | " + " | ".join(labels) + " |\n")
+        out.append("|" + " --- |" * (len(labels) + 1) + "\n")
+        for case in dict.fromkeys(str(t.outcome.get("case", "?")) for t in mine):
+            ran = [0] * len(labels)
+            crossed = [0] * len(labels)
+            for t in mine:
+                friction = t.outcome.get("contact_friction")
+                if str(t.outcome.get("case", "?")) != case or friction is None:
+                    continue
+                k = _friction_bin(float(friction))
+                ran[k] += 1
+                crossed[k] += t.outcome.get("end") == "crossed"
+            cells = [f"{c}/{n}" if n else "-" for c, n in zip(crossed, ran, strict=True)]
+            out.append(f"| {case} | " + " | ".join(cells) + " |\n")
         out.append("\n")
     return "".join(out)
