@@ -203,6 +203,8 @@ class FakeSimulator(pb_grpc.SimulatorServicer):
         #: (scenario, seed) of each Evaluate request, in order.
         self.evaluated: list[tuple[str, int, int]] = []  # scenario, seed, envs
         self.evaluated_overrides: list[str] = []  # their task_overrides_toml
+        #: ``policy_score`` reported for a policy, by its ONNX bytes (0 for any other).
+        self.policy_scores: dict[bytes, float] = {}
         #: The task overrides of each CreateSession request, in order.
         self.task_overrides: list[str] = []
 
@@ -259,6 +261,7 @@ class FakeSimulator(pb_grpc.SimulatorServicer):
             "policy_bytes": float(len(request.policy_onnx)),
             "num_envs": request.num_envs,
             "seed": float(request.seed),
+            "policy_score": self.policy_scores.get(request.policy_onnx, 0.0),
         }
         return pb.EvaluateResponse(
             metrics=metrics,

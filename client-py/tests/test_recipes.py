@@ -7,12 +7,14 @@ import csv
 import dataclasses
 import json
 import re
+import shutil
 from pathlib import Path
 from typing import Any
 
 import pytest
 
 from unigait import milestones as milestones_module
+from unigait.checkpoints import export_policy
 from unigait.cli import main
 from unigait.recipes import RecipeError, load_recipe, recipe_names
 
@@ -297,6 +299,9 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     )
     assert terrain_settle.config.policy == heading_hold.config.policy
     assert terrain_settle.stop.milestone == "M3" and terrain_settle.stop.check_every == 250
+    # It starts from the best of heading_hold's last 12 checkpoints (25 apart), judged on M3 on
+    # both check seeds: the biped's 12 cm climbs moved 0.00-0.72 between checkpoints 50 apart.
+    assert terrain_settle.start_best_of == 12 and heading_hold.start_best_of == 0
     # Both confirm a met M3 on a second validation seed; the stages before stop on one.
     assert heading_hold.stop.confirm_seed == terrain_settle.stop.confirm_seed == 2001
     assert quad_pace_6.stop.confirm_seed is None
@@ -475,6 +480,88 @@ def test_a_confirm_seed_stops_a_stage_only_when_both_seeds_meet_the_milestone(
     assert done["reason"] == "milestone T met on seed 77 and 78"
     assert done["stage_iterations"] == 2 and checks == [(4, 77), (4, 78)]
     assert ("flat_quad", 78, 3) in servicer.evaluated
+
+
+def test_a_stage_starts_from_the_best_of_the_previous_stages_checkpoints(
+    fake_server, tmp_path, monkeypatch, capsys
+):
+    address, servicer = fake_server
+    one_check_milestone(tmp_path, monkeypatch, "policy_score", ">=", 1.0)
+    first, _, _ = two_stages(tmp_path).read_text().partition('[[stages]]\nname = "second"')
+    recipe = tmp_path / "pick.toml"
+    recipe.write_text(first.replace("iterations = 2", "iterations = 3"))
+    run = tmp_path / "run"
+    command = ["train", "--server", address, "--recipe", str(recipe), "--log-dir", str(run)]
+    assert main(command) == 0
+    # The fake server scores the first stage's second checkpoint alone as meeting milestone T.
+    stage_one = run / "01_first"
+    export_policy(stage_one / "model_2.pt", tmp_path / "good.onnx")
+    servicer.policy_scores[(tmp_path / "good.onnx").read_bytes()] = 1.0
+    recipe.write_text(
+        first.replace("iterations = 2", "iterations = 3")
+        + """[[stages]]
+name = "second"
+start = "previous"
+carry = "all"
+start_best_of = 3
+[stages.stop]
+iterations = 2
+milestone = "T"
+check_every = 2
+validation_seed = 77
+confirm_seed = 78
+validation_envs = 5
+"""
+    )
+    shutil.copytree(run, tmp_path / "bare")
+    servicer.evaluated.clear()
+    assert main([*command, "--adopt-recipe"]) == 0
+    # Each of the three candidates on both check seeds, then the stage's own check.
+    assert servicer.evaluated[:6] == [("flat_quad", s, 5) for s in (77, 78)] * 3
+    stage = json.loads((run / "02_second" / "stage.json").read_text())
+    assert stage["started_from"] == str(stage_one / "model_2.pt")
+    assert stage["start_iteration"] == 2  # carry = "all": the chosen checkpoint's counters
+    chosen = stage["start_selection"]
+    assert chosen["milestone"] == "T" and chosen["seeds"] == [77, 78]
+    assert [c["iteration"] for c in chosen["candidates"]] == [1, 2, 3]
+    assert [[s["met"] for s in c["scores"]] for c in chosen["candidates"]] == [
+        [0, 0],
+        [1, 1],
+        [0, 0],
+    ]
+    assert "starts from model_2.pt, the best of 3 on T, seeds 77 and 78" in capsys.readouterr().err
+    # Its own check judges the policy it trained from there: not the chosen one any more.
+    assert servicer.evaluated[6:] == [("flat_quad", 77, 5)]
+    # A run folder that kept only the previous stage's final checkpoint starts from that.
+    bare = tmp_path / "bare"
+    for numbered in (bare / "01_first").glob("model_[0-9]*.pt"):
+        numbered.unlink()
+    done_one = json.loads((bare / "01_first" / "done.json").read_text())
+    assert done_one["final_checkpoint"] == "model_3.pt"
+    bare_command = [*command[:-1], str(bare), "--adopt-recipe"]
+    assert main(bare_command) == 0
+    stage = json.loads((bare / "02_second" / "stage.json").read_text())
+    assert stage["started_from"] == str(bare / "01_first" / "model_latest.pt")
+    assert stage["start_selection"]["candidates"] == [] and stage["start_iteration"] == 3
+    assert "no numbered checkpoints" in capsys.readouterr().err
+
+
+def test_start_best_of_needs_the_previous_stage_and_a_milestone(tmp_path):
+    def second_stage(stop: str, line: str) -> Path:
+        path = two_stages(tmp_path, stop)
+        path.write_text(path.read_text().replace('carry = "all"\n', f'carry = "all"\n{line}\n'))
+        return path
+
+    with_milestone = 'iterations = 5\nmilestone = "M2"'
+    for stop, line, message in [
+        ("iterations = 5", "start_best_of = 3", "give start"),
+        (with_milestone, "start_best_of = -1", "count of checkpoints"),
+        (with_milestone, 'start_best_of = "3"', "count of checkpoints"),
+    ]:
+        with pytest.raises(RecipeError, match=message):
+            load_recipe(str(second_stage(stop, line)))
+    second = load_recipe(str(second_stage(with_milestone, "start_best_of = 4"))).stages[1]
+    assert second.start_best_of == 4 and second.stop.check_seeds() == [2000]
 
 
 def test_a_confirm_seed_needs_a_milestone_and_another_seed(tmp_path):

@@ -79,6 +79,19 @@ impl Check {
             Some(v) => v >= self.bound,
         }
     }
+
+    /// How far `value` clears the bound, relative to it, clipped to [-1, 1] (missing: -1), as
+    /// the Python learner's `Check.margin`.
+    fn margin(&self, value: Option<f64>) -> f64 {
+        let Some(v) = value else { return -1.0 };
+        let relative = if self.bound == 0.0 {
+            v
+        } else {
+            (v - self.bound) / self.bound.abs()
+        };
+        let relative = if self.op == "<=" { -relative } else { relative };
+        relative.clamp(-1.0, 1.0)
+    }
 }
 
 /// A named set of checks and the scenarios they need.
@@ -125,6 +138,12 @@ impl Milestone {
             .iter()
             .filter(|(g, need)| passed.get(g.as_str()).copied().unwrap_or(0) >= **need)
             .count()
+    }
+
+    /// Every check's margin, summed: how a selection ranks checkpoints that meet as many
+    /// criteria (clipped per check, so one runaway figure does not outvote the others).
+    pub fn margin(&self, evals: &Evals) -> f64 {
+        self.checks.iter().map(|c| c.margin(c.value(evals))).sum()
     }
 
     /// Whether every criterion is met.
@@ -333,6 +352,19 @@ mod tests {
         );
         // A missing metric does not pass.
         assert_eq!(m1.score(&evals(&[])), 0);
+        // Margins relative to each bound, clipped to [-1, 1]; a missing metric counts -1.
+        let mixed = evals(&[
+            ("tracking_quad", "tracking/quad/lin_vel_error_mps", 0.12),
+            ("tracking_quad", "tracking/quad/ang_vel_error_radps", 0.5),
+            ("tracking_quad", "tracking/quad/termination_rate", 0.0),
+        ]);
+        // +0.2, (0.2 - 0.5) / 0.2 = -1.5 clipped to -1, and +1 (0.05 - 0) / 0.05.
+        assert!(
+            (m1.margin(&mixed) - 0.2).abs() < 1e-12,
+            "{}",
+            m1.margin(&mixed)
+        );
+        assert_eq!(m1.margin(&evals(&[])), -3.0);
     }
 
     /// M3 extends M2 (which extends M1) and counts Table VI as one group of 4 of 6.

@@ -85,6 +85,8 @@ struct RawStage {
     #[serde(default)]
     start: Option<String>,
     #[serde(default)]
+    start_best_of: Option<i64>,
+    #[serde(default)]
     carry: Option<String>,
     stop: Option<StopRule>,
     #[serde(default)]
@@ -140,6 +142,10 @@ pub struct Stage {
     pub note: String,
     /// How it starts.
     pub start: Start,
+    /// With [`Start::Previous`] and a milestone: start from the best of the previous stage's
+    /// last this many checkpoints, judged on the stop rule's milestone and check seeds (0: its
+    /// final one). Checkpoints close together can differ by more than a stage moves them.
+    pub start_best_of: u32,
     /// From a checkpoint: `"weights"` or `"all"` (optimisers and counters too).
     pub carry: String,
     /// When it ends.
@@ -319,11 +325,26 @@ fn load(name_or_path: &str, dir: &Path, seen: &mut Vec<String>) -> Result<Recipe
                 "{here} [stages.stop]: confirm_seed must differ from validation_seed"
             )));
         }
+        let start_best_of = match s.start_best_of.unwrap_or(0) {
+            n @ 0..=1_000_000 => n as u32,
+            _ => {
+                return Err(RecipeError(format!(
+                    "{here}: start_best_of must be a count of checkpoints (>= 0)"
+                )));
+            }
+        };
+        if start_best_of > 0 && (start != Start::Previous || stop.milestone.is_none()) {
+            return Err(RecipeError(format!(
+                "{here}: start_best_of chooses among the previous stage's checkpoints by the \
+                 stage's milestone: give start = \"previous\" and [stages.stop] milestone"
+            )));
+        }
         stages.push(Stage {
             index: i,
             name: s.name.clone(),
             note: s.note.clone(),
             start,
+            start_best_of,
             carry,
             stop,
             config: cfg.clone(),
@@ -438,6 +459,42 @@ mod tests {
                 load_recipe(p.to_str().unwrap(), &dir).unwrap_or_else(|e| panic!("{e}"));
             }
         }
+    }
+
+    #[test]
+    fn start_best_of_needs_the_previous_stage_and_a_milestone() {
+        let d = tmp("best_of");
+        let first = "[[stages]]\nname = \"a\"\n[stages.stop]\niterations = 1\n";
+        let second = |line: &str, stop: &str| {
+            format!(
+                "{first}[[stages]]\nname = \"b\"\nstart = \"previous\"\n{line}\n\
+                 [stages.stop]\niterations = 2\n{stop}"
+            )
+        };
+        write(
+            &d,
+            "ok",
+            &second("start_best_of = 4", "milestone = \"M3\"\n"),
+        );
+        let stages = load_recipe("ok", &d).unwrap().stages;
+        assert_eq!((stages[0].start_best_of, stages[1].start_best_of), (0, 4));
+        for (name, text, message) in [
+            (
+                "bare",
+                second("start_best_of = 4", ""),
+                "give start = \"previous\"",
+            ),
+            (
+                "negative",
+                second("start_best_of = -1", "milestone = \"M3\"\n"),
+                "count of checkpoints",
+            ),
+        ] {
+            write(&d, name, &text);
+            let e = load_recipe(name, &d).unwrap_err().0;
+            assert!(e.contains(message), "{e}");
+        }
+        let _ = std::fs::remove_dir_all(&d);
     }
 
     #[test]

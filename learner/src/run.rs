@@ -274,6 +274,15 @@ async fn run_stage(
             Start::Checkpoint(p) => Some(p.clone()),
         }
     };
+    let mut start_selection = None;
+    let source = match (&source, previous_final) {
+        (Some(_), Some(previous)) if !resuming && stage.start_best_of > 0 => {
+            let (chosen, record) = best_start(stage, previous, client).await?;
+            start_selection = Some(record);
+            Some(chosen)
+        }
+        _ => source,
+    };
     let source_ck = source.as_deref().map(Checkpoint::load).transpose()?;
     let (cfg, start) = resumed_config(stage.config.clone(), source_ck.as_ref());
     let mut envs = Envs::open(
@@ -283,7 +292,15 @@ async fn run_stage(
     )
     .await?;
     let result = train_stage(
-        recipe, stage, stage_dir, cfg, &mut envs, source_ck, resuming, client,
+        recipe,
+        stage,
+        stage_dir,
+        cfg,
+        &mut envs,
+        source_ck,
+        resuming,
+        start_selection,
+        client,
     )
     .await;
     let closed = envs.close().await;
@@ -301,6 +318,7 @@ async fn train_stage(
     envs: &mut Envs,
     source: Option<Checkpoint>,
     resuming: bool,
+    start_selection: Option<serde_json::Value>,
     client: &mut Client,
 ) -> Result<(PathBuf, u64)> {
     let save_interval = cfg.runner.save_interval;
@@ -338,17 +356,18 @@ async fn train_stage(
         if let Some(ck) = &source {
             learner.load(ck, stage.carry == "all")?;
         }
-        write_json(
-            &stage_dir.join(STAGE_FILE),
-            &json!({
-                "start_iteration": learner.iteration,
-                "carry": stage.carry,
-                "started_from": match &stage.start {
-                    Start::Fresh => serde_json::Value::Null,
-                    _ => json!(stage.start_label()),
-                },
-            }),
-        )?;
+        let mut record = json!({
+            "start_iteration": learner.iteration,
+            "carry": stage.carry,
+            "started_from": match &stage.start {
+                Start::Fresh => serde_json::Value::Null,
+                _ => json!(stage.start_label()),
+            },
+        });
+        if let Some(selection) = start_selection {
+            record["start_selection"] = selection;
+        }
+        write_json(&stage_dir.join(STAGE_FILE), &record)?;
         learner.iteration
     };
     learner.provenance = json!({
@@ -465,6 +484,134 @@ async fn train_stage(
         }),
     )?;
     Ok((final_path, learner.iteration))
+}
+
+/// One candidate of [`best_start`]: its iteration, path and (seed, criteria met, margin) per
+/// check seed.
+struct Candidate {
+    iteration: u64,
+    path: PathBuf,
+    scores: Vec<(u64, usize, f64)>,
+}
+
+impl Candidate {
+    fn seeds_met(&self, criteria: usize) -> usize {
+        self.scores.iter().filter(|s| s.1 == criteria).count()
+    }
+    fn met(&self) -> usize {
+        self.scores.iter().map(|s| s.1).sum()
+    }
+    fn margin(&self) -> f64 {
+        self.scores.iter().map(|s| s.2).sum()
+    }
+}
+
+/// The numbered checkpoints (`model_<iteration>.ckpt`) of `folder`, the last `last` by
+/// iteration, oldest first.
+fn recent_checkpoints(folder: &Path, last: usize) -> Result<Vec<(u64, PathBuf)>> {
+    let mut found: Vec<(u64, PathBuf)> = std::fs::read_dir(folder)?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter_map(|p| {
+            let name = p.file_name()?.to_str()?;
+            let iteration = name.strip_prefix("model_")?.strip_suffix(".ckpt")?;
+            Some((iteration.parse().ok()?, p))
+        })
+        .collect();
+    found.sort();
+    Ok(found.split_off(found.len().saturating_sub(last)))
+}
+
+/// The best of the previous stage's last `stage.start_best_of` checkpoints, judged on the
+/// stage's milestone on every check seed, and how it was chosen (`stage.json`'s
+/// `start_selection`), as the Python learner's recipe runner chooses: seeds on which every
+/// criterion is met, then criteria met, summed margin, the later checkpoint. A run folder that
+/// kept only the previous stage's final checkpoint starts from that.
+async fn best_start(
+    stage: &Stage,
+    previous_final: &Path,
+    client: &mut Client,
+) -> Result<(PathBuf, serde_json::Value)> {
+    let rule = &stage.stop;
+    let name = rule.milestone.as_deref().ok_or_else(|| {
+        Error::Run(format!(
+            "stage {}: start_best_of needs a milestone",
+            stage.name
+        ))
+    })?;
+    let m = load_milestone(name, &milestones_file())?;
+    let folder = previous_final.parent().unwrap_or(Path::new("."));
+    let found = recent_checkpoints(folder, stage.start_best_of as usize)?;
+    if found.is_empty() {
+        tracing::info!(
+            "stage {}: no numbered checkpoints in {}; starts from its final",
+            stage.dir_name(),
+            folder.display()
+        );
+        let chosen = previous_final.to_path_buf();
+        let record = json!({"candidates": [], "chosen": chosen.display().to_string()});
+        return Ok((chosen, record));
+    }
+    let seeds = rule.check_seeds();
+    let mut candidates = Vec::new();
+    for (iteration, path) in found {
+        let ck = Checkpoint::load(&path)?;
+        let onnx = export_checkpoint(&ck)?;
+        let engine = engine_overrides(&ck.header.trained_engine());
+        let mut scores = Vec::new();
+        for &seed in &seeds {
+            let evals =
+                milestone::evaluate(client, &m, &onnx, rule.validation_envs, seed, &engine).await?;
+            scores.push((seed, m.score(&evals), m.margin(&evals)));
+        }
+        candidates.push(Candidate {
+            iteration,
+            path,
+            scores,
+        });
+    }
+    let criteria = m.criteria();
+    let best = candidates
+        .iter()
+        .max_by(|a, b| {
+            (a.seeds_met(criteria), a.met())
+                .cmp(&(b.seeds_met(criteria), b.met()))
+                .then(a.margin().total_cmp(&b.margin()))
+                .then(a.iteration.cmp(&b.iteration))
+        })
+        .map(|c| c.path.clone())
+        .unwrap_or_else(|| previous_final.to_path_buf());
+    let listed: Vec<String> = candidates
+        .iter()
+        .map(|c| {
+            let met: Vec<String> = c
+                .scores
+                .iter()
+                .map(|s| format!("{}/{criteria}", s.1))
+                .collect();
+            format!("{}: {}", c.iteration, met.join(" + "))
+        })
+        .collect();
+    tracing::info!(
+        "stage {}: starts from {}, the best of {} on {}, seeds {:?} ({})",
+        stage.dir_name(),
+        best.display(),
+        candidates.len(),
+        m.name,
+        seeds,
+        listed.join(", ")
+    );
+    let record = json!({
+        "milestone": m.name,
+        "seeds": seeds,
+        "candidates": candidates.iter().map(|c| json!({
+            "iteration": c.iteration,
+            "scores": c.scores.iter().map(|&(seed, met, margin)| json!({
+                "seed": seed, "met": met, "margin": margin,
+            })).collect::<Vec<_>>(),
+        })).collect::<Vec<_>>(),
+        "chosen": best.display().to_string(),
+    });
+    Ok((best, record))
 }
 
 impl Stage {

@@ -328,6 +328,74 @@ fn a_milestone_stage_checks_on_the_validation_seed() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// `start_best_of` starts a stage from the best of the previous stage's last checkpoints,
+/// each judged on the stage's milestone and seed, and records the choice in `stage.json`.
+#[test]
+fn a_stage_starts_from_the_best_of_the_previous_stages_checkpoints() {
+    let bin = server_binary(None);
+    assert!(bin.is_file(), "no server binary at {}", bin.display());
+    let server = LocalServer::start(&bin, &["--threads".into(), "1".into()]).unwrap();
+    let dir = fresh_dir("best_of");
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("best_of.toml");
+    std::fs::write(
+        &file,
+        "milestone = \"M1\"\n[[stages]]\nname = \"first\"\n[stages.stop]\niterations = 3\n\
+         [stages.env]\nnum_envs = 16\n[stages.runner]\nsave_interval = 1\n\
+         [stages.task.modes]\nbiped_probability = 0.0\n\
+         [[stages]]\nname = \"second\"\nstart = \"previous\"\ncarry = \"all\"\n\
+         start_best_of = 2\n[stages.stop]\niterations = 1\nmilestone = \"M1\"\n\
+         check_every = 5\nvalidation_envs = 2\nvalidation_seed = 9\n",
+    )
+    .unwrap();
+    let recipe = load_recipe(file.to_str().unwrap(), &recipes_dir()).unwrap();
+    let log_dir = dir.join("run");
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    runtime
+        .block_on(run_recipe(
+            recipe,
+            &Overrides::default(),
+            &log_dir,
+            &server.address,
+        ))
+        .unwrap();
+    let stage: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(log_dir.join("02_second/stage.json")).unwrap(),
+    )
+    .unwrap();
+    let selection = &stage["start_selection"];
+    assert_eq!(selection["milestone"], "M1");
+    assert_eq!(selection["seeds"], serde_json::json!([9]));
+    let candidates = selection["candidates"].as_array().unwrap();
+    let iterations: Vec<u64> = candidates
+        .iter()
+        .map(|c| c["iteration"].as_u64().unwrap())
+        .collect();
+    assert_eq!(iterations, [2, 3], "{selection}");
+    for c in candidates {
+        let score = &c["scores"][0];
+        assert_eq!(score["seed"], 9);
+        assert!(score["met"].as_u64().unwrap() <= 3, "{score}");
+        assert!(score["margin"].as_f64().unwrap().abs() <= 3.0, "{score}");
+    }
+    // carry = "all": the stage goes on from the chosen checkpoint's iteration.
+    let chosen = selection["chosen"].as_str().unwrap();
+    let chosen_iteration = if chosen.ends_with("model_2.ckpt") {
+        2
+    } else {
+        3
+    };
+    assert!(
+        chosen.ends_with(&format!("model_{chosen_iteration}.ckpt")),
+        "{chosen}"
+    );
+    assert_eq!(stage["start_iteration"], chosen_iteration);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// `env.terrain_columns` builds the grid the run asks for (decision record 0037), and the log
 /// counts the types the server reports for it.
 #[test]

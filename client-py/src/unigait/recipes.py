@@ -12,6 +12,8 @@ A recipe is a TOML file (home: ``assets/recipes/``; the package carries them)::
     [[stages]]
     name = "upright"
     start = "fresh"               # "fresh" | "previous" | a checkpoint path (from the repo root)
+    start_best_of = 12            # optional, with "previous": the best of its last 12 checkpoints,
+                                  # judged on this stage's milestone and check seeds
     carry = "weights"             # from a checkpoint: "weights" only, or "all" (optimisers too)
     [stages.stop]
     iterations = 6000             # the stage's length (its upper bound with a milestone)
@@ -47,6 +49,7 @@ _STAGE_KEYS = {
     "name",
     "note",
     "start",
+    "start_best_of",
     "carry",
     "stop",
     "ran_at",
@@ -97,10 +100,21 @@ class StopRule:
     validation_envs: int = 64
     confirm_seed: int | None = None
 
+    def check_seeds(self) -> list[int]:
+        """The seeds a check is judged on, in order: the validation seed, then the confirm seed."""
+        return [self.validation_seed] + ([] if self.confirm_seed is None else [self.confirm_seed])
+
 
 @dataclass(frozen=True)
 class Stage:
-    """One resolved stage: how it starts, when it stops, and its whole training config."""
+    """One resolved stage: how it starts, when it stops, and its whole training config.
+
+    ``start_best_of`` (N > 0, with ``start = "previous"`` and a milestone): the stage starts from
+    the best of the previous stage's last N checkpoints, judged on the stop rule's milestone and
+    check seeds (ranked as ``ship --select-last`` ranks). Checkpoints 50 iterations apart can
+    differ by more than a stage of training moves them, and a stage that settles at a low
+    learning rate keeps whichever one it starts from.
+    """
 
     index: int
     name: str
@@ -111,6 +125,7 @@ class Stage:
     config: TrainConfig
     ran_at: str | None
     runs_at_head: bool
+    start_best_of: int = 0
 
     @property
     def dir_name(self) -> str:
@@ -252,6 +267,15 @@ def load_recipe(name_or_path: str, sets: Sequence[str] = (), _seen: tuple[str, .
         carry = str(raw.get("carry", "weights"))
         if carry not in ("weights", "all"):
             raise RecipeError(f"{here}: carry must be 'weights' or 'all', got {carry!r}")
+        stop = _stop_rule(raw.get("stop"), here)
+        best_of = raw.get("start_best_of", 0)
+        if not isinstance(best_of, int) or isinstance(best_of, bool) or best_of < 0:
+            raise RecipeError(f"{here}: start_best_of must be a count of checkpoints (>= 0)")
+        if best_of and (start != "previous" or stop.milestone is None):
+            raise RecipeError(
+                f"{here}: start_best_of chooses among the previous stage's checkpoints by the "
+                'stage\'s milestone: give start = "previous" and [stages.stop] milestone'
+            )
         cfg = _stage_config(cfg, raw, here)
         try:
             resolved = _overridden(cfg, sets)
@@ -264,10 +288,11 @@ def load_recipe(name_or_path: str, sets: Sequence[str] = (), _seen: tuple[str, .
                 note=str(raw.get("note", "")),
                 start=start,
                 carry=carry,
-                stop=_stop_rule(raw.get("stop"), here),
+                stop=stop,
                 config=resolved,
                 ran_at=raw.get("ran_at"),
                 runs_at_head=bool(raw.get("runs_at_head", True)),
+                start_best_of=best_of,
             )
         )
     milestone = doc.get("milestone")
@@ -319,12 +344,18 @@ def describe(recipe: Recipe) -> str:
         if stage.stop.milestone:
             seeds = f"seed {stage.stop.validation_seed}"
             if stage.stop.confirm_seed is not None:
-                seeds = f"seeds {stage.stop.validation_seed} and {stage.stop.confirm_seed}"
+                seeds = "seeds " + " and ".join(str(seed) for seed in stage.stop.check_seeds())
             stop = (
                 f"milestone {stage.stop.milestone} met on {seeds} "
                 f"(checked every {stage.stop.check_every}), at most {stop}"
             )
         start = stage.start if stage.start in ("fresh", "previous") else f"from {stage.start}"
+        if stage.start_best_of:
+            checked = " and ".join(str(seed) for seed in stage.stop.check_seeds())
+            start = (
+                f"previous: the best of its last {stage.start_best_of} checkpoints on "
+                f"{stage.stop.milestone}, seeds {checked}"
+            )
         lines += [
             "",
             f"stage {stage.index + 1}: {stage.name} [{start}, carry {stage.carry}; stop: {stop}]",

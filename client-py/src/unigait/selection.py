@@ -24,6 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from unigait.checkpoints import export_policy, read_checkpoint
+from unigait.client import ConnectionOptions
 from unigait.config import checkpoint_engine_overrides
 from unigait.milestones import Milestone
 
@@ -82,6 +83,7 @@ def select_checkpoint(
     last: int,
     seeds: Sequence[int],
     num_envs: int,
+    connection: ConnectionOptions | None = None,
 ) -> list[Candidate]:
     """Evaluate the run's ``last`` checkpoints on each of ``seeds``; the candidates, best first."""
     from unigait.client import Client
@@ -92,7 +94,7 @@ def select_checkpoint(
     if not checkpoints:
         raise FileNotFoundError(f"no model_<iteration>.pt (or .ckpt) in {run_dir}")
     candidates = []
-    with tempfile.TemporaryDirectory() as tmp, Client(address) as client:
+    with tempfile.TemporaryDirectory() as tmp, Client(address, **(connection or {})) as client:
         onnx_path = Path(tmp) / "policy.onnx"
         for iteration, path in checkpoints:
             export_policy(path, onnx_path)

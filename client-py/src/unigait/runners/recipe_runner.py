@@ -35,6 +35,7 @@ from unigait.milestones import milestone as load_milestone
 from unigait.provenance import git_commit
 from unigait.recipes import Recipe, Stage, stage_config
 from unigait.runners.on_policy_runner import OnPolicyRunner
+from unigait.selection import recent_checkpoints, select_checkpoint
 
 RECIPE_FILE = "recipe.toml"
 RUN_FILE = "run.json"
@@ -177,6 +178,53 @@ def _start_checkpoint(stage: Stage, previous_final: Path | None) -> Path | None:
     return path
 
 
+def _best_start(
+    stage: Stage,
+    previous_final: Path,
+    address: str,
+    connection: ConnectionOptions,
+    log: Callable[[str], None],
+) -> tuple[Path, dict[str, Any]]:
+    """The best of the previous stage's last ``start_best_of`` checkpoints, and how it was chosen.
+
+    Each is judged on the stage's milestone on every check seed; a run folder that kept only
+    the previous stage's final checkpoint (a clone of a committed run) starts from that.
+    """
+    rule = stage.stop
+    assert rule.milestone is not None
+    folder = previous_final.parent
+    if not recent_checkpoints(folder, stage.start_best_of):
+        log(f"stage {stage.dir_name}: no numbered checkpoints in {folder}; starts from its final")
+        return previous_final, {"candidates": [], "chosen": str(previous_final)}
+    target = load_milestone(rule.milestone)
+    seeds = rule.check_seeds()
+    ranked = select_checkpoint(
+        folder, target, address, stage.start_best_of, seeds, rule.validation_envs, connection
+    )
+    chosen = ranked[0]
+    scores = ", ".join(
+        f"{c.iteration}: " + " + ".join(f"{s.met}/{target.criteria()}" for s in c.scores)
+        for c in sorted(ranked, key=lambda c: c.iteration)
+    )
+    log(
+        f"stage {stage.dir_name}: starts from {chosen.path.name}, the best of {len(ranked)} on "
+        f"{target.name}, seeds {' and '.join(map(str, seeds))} ({scores})"
+    )
+    record = {
+        "milestone": target.name,
+        "seeds": seeds,
+        "candidates": [
+            {
+                "iteration": c.iteration,
+                "scores": [{"seed": s.seed, "met": s.met, "margin": s.margin} for s in c.scores],
+            }
+            for c in sorted(ranked, key=lambda c: c.iteration)
+        ],
+        "chosen": str(chosen.path),
+    }
+    return chosen.path, record
+
+
 def run_stage(
     recipe: Recipe,
     stage: Stage,
@@ -215,6 +263,9 @@ def run_stage(
         shutil.rmtree(stage_dir, ignore_errors=True)
     stage_dir.mkdir(parents=True, exist_ok=True)
     source = latest if resuming else _start_checkpoint(stage, previous_final)
+    start_selection: dict[str, Any] | None = None
+    if not resuming and stage.start_best_of and previous_final is not None:
+        source, start_selection = _best_start(stage, previous_final, addresses[0], connection, log)
     cfg: TrainConfig = stage_config(stage, stage_dir)
     if tensorboard:
         cfg = dataclasses.replace(cfg, runner=dataclasses.replace(cfg.runner, tensorboard=True))
@@ -261,7 +312,8 @@ def run_stage(
                     "start_iteration": start_iteration,
                     "started_from": None if source is None else str(source),
                     "carry": stage.carry,
-                },
+                }
+                | ({} if start_selection is None else {"start_selection": start_selection}),
             )
         count = len(recipe.stages)
         line = f"recipe {recipe.name}, stage {stage.index + 1} of {count}: {stage.name}"
