@@ -66,6 +66,12 @@ def test_runner_trains_logs_checkpoints_and_resumes(tmp_path, capsys):
     fixed.load(tmp_path / "model_2.pt")
     assert runner.ppo.learning_rate != 3e-6 and fixed.ppo.learning_rate == 3e-6
     assert all(g["lr"] == 3e-6 for g in fixed.ppo.optimizer.param_groups)
+    # The estimator's rate is the configured one too (it has no schedule to carry).
+    assert all(g["lr"] == 1e-4 for g in fixed.estimator_learning.optimizer.param_groups)
+    slow_cfg = load_config(None, [*SMALL, "estimator.learning_rate=3e-6"])
+    slow = OnPolicyRunner(TorchVecEnv(FakeSession(8)), slow_cfg, tmp_path / "slow")
+    slow.load(tmp_path / "model_2.pt")
+    assert all(g["lr"] == 3e-6 for g in slow.estimator_learning.optimizer.param_groups)
 
     # Staged training: networks and the adaptive learning rate, not the counters or optimiser;
     # the stage commands travel with the networks, and a resume adds none.

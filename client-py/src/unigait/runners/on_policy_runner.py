@@ -452,6 +452,10 @@ class OnPolicyRunner:
         self.estimator.load_state_dict(state["estimator"])
         self.ppo.optimizer.load_state_dict(state["optimizer"])
         self.estimator_learning.optimizer.load_state_dict(state["estimator_optimizer"])
+        # The estimator has no schedule: its rate is the configured one, not the checkpoint's,
+        # else a stage could never change it (the Rust learner steps at the config's too).
+        for group in self.estimator_learning.optimizer.param_groups:
+            group["lr"] = self.cfg.estimator.learning_rate
         # An adaptive schedule carries on from the checkpoint's rate; a fixed one is the rate the
         # user configured (how one settles a run at a rate below the adaptive rule's floor).
         if self.cfg.ppo.schedule == "adaptive":
