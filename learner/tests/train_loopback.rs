@@ -14,7 +14,7 @@ use unigait_learner::checkpoint::Checkpoint;
 use unigait_learner::config::TrainConfig;
 use unigait_learner::learner::Learner;
 use unigait_learner::recipe::{load_recipe, recipes_dir};
-use unigait_learner::run::{Overrides, export_checkpoint, run_recipe};
+use unigait_learner::run::{Overrides, RunSummary, export_checkpoint, run_recipe};
 use unigait_learner::server::{LocalServer, server_binary};
 
 const ENVS: u32 = 16;
@@ -274,25 +274,16 @@ fn trains_resumes_and_exports_against_the_real_server() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// A stage with a milestone judges its policy on the validation seed every `check_every`
-/// iterations and writes the record (an untrained policy does not meet M1: the stage runs out
-/// its iterations, and its confirm seed is never asked).
-#[test]
-fn a_milestone_stage_checks_on_the_validation_seed() {
+/// Run the recipe `text` against a local server (one thread) in a fresh folder: the folder, the
+/// run's log directory in it, and the run's summary.
+fn run_recipe_text(tag: &str, text: &str) -> (PathBuf, PathBuf, RunSummary) {
     let bin = server_binary(None);
     assert!(bin.is_file(), "no server binary at {}", bin.display());
     let server = LocalServer::start(&bin, &["--threads".into(), "1".into()]).unwrap();
-    let dir = fresh_dir("milestone");
+    let dir = fresh_dir(tag);
     std::fs::create_dir_all(&dir).unwrap();
-    let file = dir.join("m1_check.toml");
-    std::fs::write(
-        &file,
-        "milestone = \"M1\"\n[[stages]]\nname = \"quad\"\n[stages.stop]\niterations = 2\n\
-         milestone = \"M1\"\ncheck_every = 1\nvalidation_envs = 2\nvalidation_seed = 9\n\
-         confirm_seed = 10\n\
-         [stages.env]\nnum_envs = 16\n[stages.task.modes]\nbiped_probability = 0.0\n",
-    )
-    .unwrap();
+    let file = dir.join(format!("{tag}.toml"));
+    std::fs::write(&file, text).unwrap();
     let recipe = load_recipe(file.to_str().unwrap(), &recipes_dir()).unwrap();
     let log_dir = dir.join("run");
     let runtime = tokio::runtime::Builder::new_current_thread()
@@ -307,6 +298,21 @@ fn a_milestone_stage_checks_on_the_validation_seed() {
             &server.address,
         ))
         .unwrap();
+    (dir, log_dir, summary)
+}
+
+/// A stage with a milestone judges its policy on the validation seed every `check_every`
+/// iterations and writes the record (an untrained policy does not meet M1: the stage runs out
+/// its iterations, and its confirm seed is never asked).
+#[test]
+fn a_milestone_stage_checks_on_the_validation_seed() {
+    let (dir, log_dir, summary) = run_recipe_text(
+        "milestone",
+        "milestone = \"M1\"\n[[stages]]\nname = \"quad\"\n[stages.stop]\niterations = 2\n\
+         milestone = \"M1\"\ncheck_every = 1\nvalidation_envs = 2\nvalidation_seed = 9\n\
+         confirm_seed = 10\n\
+         [stages.env]\nnum_envs = 16\n[stages.task.modes]\nbiped_probability = 0.0\n",
+    );
     assert_eq!(summary.iteration, 2);
     let text = std::fs::read_to_string(log_dir.join("01_quad/validation.jsonl")).unwrap();
     let records: Vec<serde_json::Value> = text
@@ -332,36 +338,15 @@ fn a_milestone_stage_checks_on_the_validation_seed() {
 /// each judged on the stage's milestone and seed, and records the choice in `stage.json`.
 #[test]
 fn a_stage_starts_from_the_best_of_the_previous_stages_checkpoints() {
-    let bin = server_binary(None);
-    assert!(bin.is_file(), "no server binary at {}", bin.display());
-    let server = LocalServer::start(&bin, &["--threads".into(), "1".into()]).unwrap();
-    let dir = fresh_dir("best_of");
-    std::fs::create_dir_all(&dir).unwrap();
-    let file = dir.join("best_of.toml");
-    std::fs::write(
-        &file,
+    let (dir, log_dir, _) = run_recipe_text(
+        "best_of",
         "milestone = \"M1\"\n[[stages]]\nname = \"first\"\n[stages.stop]\niterations = 3\n\
          [stages.env]\nnum_envs = 16\n[stages.runner]\nsave_interval = 1\n\
          [stages.task.modes]\nbiped_probability = 0.0\n\
          [[stages]]\nname = \"second\"\nstart = \"previous\"\ncarry = \"all\"\n\
          start_best_of = 2\n[stages.stop]\niterations = 1\nmilestone = \"M1\"\n\
          check_every = 5\nvalidation_envs = 2\nvalidation_seed = 9\n",
-    )
-    .unwrap();
-    let recipe = load_recipe(file.to_str().unwrap(), &recipes_dir()).unwrap();
-    let log_dir = dir.join("run");
-    let runtime = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .unwrap();
-    runtime
-        .block_on(run_recipe(
-            recipe,
-            &Overrides::default(),
-            &log_dir,
-            &server.address,
-        ))
-        .unwrap();
+    );
     let stage: serde_json::Value = serde_json::from_str(
         &std::fs::read_to_string(log_dir.join("02_second/stage.json")).unwrap(),
     )

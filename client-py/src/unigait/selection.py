@@ -62,6 +62,10 @@ class Candidate:
         """Relative margins, summed over the seeds."""
         return sum(s.margin for s in self.scores)
 
+    def met_per_seed(self, criteria: int) -> str:
+        """Criteria met on each seed, ``8/8 + 7/8``."""
+        return " + ".join(f"{s.met}/{criteria}" for s in self.scores)
+
 
 def recent_checkpoints(run_dir: Path, last: int) -> list[tuple[int, Path]]:
     """The run's ``last`` numbered checkpoints, oldest first.
@@ -132,8 +136,7 @@ def describe(candidates: Sequence[Candidate], milestone: Milestone, num_envs: in
     seeds = [s.seed for s in chosen.scores]
     per_seed = " + ".join(str(s) for s in seeds)
     scores = ", ".join(
-        f"{c.iteration}: {' + '.join(f'{s.met}/{milestone.criteria()}' for s in c.scores)}"
-        f" ({c.margin:+.2f})"
+        f"{c.iteration}: {c.met_per_seed(milestone.criteria())} ({c.margin:+.2f})"
         for c in sorted(candidates, key=lambda c: c.iteration)
     )
     on = f"validation seed {seeds[0]}" if len(seeds) == 1 else f"validation seeds {per_seed}"

@@ -203,7 +203,7 @@ def _best_start(
     )
     chosen = ranked[0]
     scores = ", ".join(
-        f"{c.iteration}: " + " + ".join(f"{s.met}/{target.criteria()}" for s in c.scores)
+        f"{c.iteration}: {c.met_per_seed(target.criteria())}"
         for c in sorted(ranked, key=lambda c: c.iteration)
     )
     log(
