@@ -205,6 +205,9 @@ class FakeSimulator(pb_grpc.SimulatorServicer):
         self.evaluated_overrides: list[str] = []  # their task_overrides_toml
         #: ``policy_score`` reported for a policy, by its ONNX bytes (0 for any other).
         self.policy_scores: dict[bytes, float] = {}
+        #: ``success_rate`` reported for a policy, by its ONNX bytes (none for any other), with
+        #: ``trials`` equal to the request's envs.
+        self.policy_success: dict[bytes, float] = {}
         #: The task overrides of each CreateSession request, in order.
         self.task_overrides: list[str] = []
 
@@ -263,6 +266,9 @@ class FakeSimulator(pb_grpc.SimulatorServicer):
             "seed": float(request.seed),
             "policy_score": self.policy_scores.get(request.policy_onnx, 0.0),
         }
+        if request.policy_onnx in self.policy_success:
+            metrics["success_rate"] = self.policy_success[request.policy_onnx]
+            metrics["trials"] = float(request.num_envs)
         return pb.EvaluateResponse(
             metrics=metrics,
             report_json=json.dumps(

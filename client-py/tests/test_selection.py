@@ -112,9 +112,56 @@ def test_ship_chooses_on_the_validation_seed_and_reports_on_the_evaluation_seed(
     assert (folder / "training.png").stat().st_size > 0
     assert not (folder / "training_curves.png").exists()
     assert "(iterations 1-2, the shipped log)" in (folder / "MODEL_CARD.md").read_text()
+    # Ranked by the pass chance: the card says so.
+    servicer.evaluated.clear()
+    by_chance = ["--select-last", "1", "--select-seed", "7", "--select-by", "pass-chance"]
+    assert main([*ship, *by_chance, "--select-envs", "12"]) == 0
+    assert servicer.evaluated[: len(scenarios)] == [(s, 7, 12) for s in scenarios]
+    card = (folder / "MODEL_CARD.md").read_text()
+    assert "by the estimated chance of meeting M2 on one unseen draw" in card
+    assert "from 12 envs per scenario on validation seed 7" in card
     capsys.readouterr()
     # The validation seed must not be the evaluation seed, and a given checkpoint is not chosen.
     assert main([*ship, "--select-last", "2", "--select-seed", "1000"]) == 2
     assert main([*ship, "--select-last", "2", "--select-seed", "7", "--select-seed", "1000"]) == 2
     assert main([*ship, "--select-last", "2", "--checkpoint", str(run / "model_2.pt")]) == 2
     assert "--select-last chooses the checkpoint" in capsys.readouterr().err
+
+
+def test_pass_chance_ranks_on_many_trials_of_every_scenario(fake_server, tmp_path):
+    from test_pass_chance import every_one_of
+
+    from unigait.checkpoints import export_policy
+    from unigait.milestones import Check, Milestone
+    from unigait.selection import select_checkpoint
+
+    address, servicer = fake_server
+    run = tmp_path / "run"
+    train = ["train", "--server", address, "--num-envs", "6", "--log-dir", str(run), *SMALL]
+    assert main([*train, "--iterations", "3"]) == 0
+    # Every trial crossed for iteration 2, 0.9 of them for iteration 3, nothing for 1.
+    for iteration, rate in ((2, 1.0), (3, 0.9)):
+        export_policy(run / f"model_{iteration}.pt", tmp_path / "p.onnx")
+        servicer.policy_success[(tmp_path / "p.onnx").read_bytes()] = rate
+    # Judged on 20 trials; chosen on 12 a seed.
+    check = Check("course", "success_rate", ">=", 1.0, "every trial")
+    judged = Milestone("T", "test", ("course", "flat"), (check,), {}, {"course": 20})
+    servicer.evaluated.clear()
+    ranked = select_checkpoint(run, judged, address, 3, [7, 8], 12, by="pass_chance")
+    assert servicer.evaluated == [(s, seed, 12) for seed in (7, 8) for s in ("course", "flat")] * 3
+    assert [c.iteration for c in ranked] == [2, 3, 1]
+    # 24 of 24 seen, and 22 of 24 (0.9 of 12 rounds to 11 a seed).
+    assert ranked[0].chance == pytest.approx(every_one_of(20, 24, 24))
+    assert ranked[1].chance == pytest.approx(every_one_of(20, 22, 24))
+    assert ranked[2].chance == 0.0
+    text = describe(ranked, judged, 12)
+    assert "by the estimated chance of meeting T on one unseen draw" in text
+    assert "from 12 envs per scenario on validation seeds 7 + 8" in text
+    assert f"1: 0.00, 2: {ranked[0].chance:.2f}, 3: {ranked[1].chance:.2f}" in text
+    assert "Iteration 2 ranked first" in text
+    # By criteria the course is judged on the milestone's own 20 trials.
+    servicer.evaluated.clear()
+    select_checkpoint(run, judged, address, 1, [7], 12)
+    assert servicer.evaluated == [("course", 7, 20), ("flat", 7, 12)]
+    with pytest.raises(ValueError, match="unknown ranking"):
+        select_checkpoint(run, judged, address, 1, [7], 12, by="luck")

@@ -418,6 +418,8 @@ def _ship(args: argparse.Namespace) -> int:
                 args.select_last,
                 select_seeds,
                 select_envs,
+                by=args.select_by.replace("-", "_"),
+                judged_envs=args.num_envs,
             )
             checkpoint = ranked[0].path
             selection = describe(ranked, milestones[0], select_envs)
@@ -722,6 +724,14 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="envs per scenario for --select-last (default: --num-envs); more envs make a "
         "success rate's noise smaller, so the best-looking candidate is less often a lucky one",
+    )
+    s.add_argument(
+        "--select-by",
+        choices=["criteria", "pass-chance"],
+        default="criteria",
+        help="rank --select-last's candidates by the milestone's criteria met on each seed "
+        "(scenarios at the milestone's own size), or by the estimated chance of meeting it on "
+        "one unseen draw, every scenario at --select-envs (docs: evaluation)",
     )
     s.set_defaults(func=_ship)
 
