@@ -122,7 +122,8 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
         "unified_terrain"
     ).stages[18:26]
     late = load_recipe("unified_terrain").stages[26:]
-    clock, air_time, quad_swing, biped_forward, quad_pace_6, heading_hold, terrain_settle = late
+    clock, air_time, quad_swing, biped_forward, quad_pace_6, heading_hold, terrain_settle = late[:7]
+    climb_on, settle_again = late[7:]
     assert terrain.config.policy == settle.config.policy
     assert (
         terrain.config.env.task["rewards"]["weights"]
@@ -305,6 +306,13 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     # Both confirm a met M3 on a second validation seed; the stages before stop on one.
     assert heading_hold.stop.confirm_seed == terrain_settle.stop.confirm_seed == 2001
     assert quad_pace_6.stop.confirm_seed is None
+    # The thirty-fourth goes back to heading_hold's training from settle's end; the thirty-fifth
+    # settles it as the thirty-third did.
+    assert climb_on.config == heading_hold.config and climb_on.carry == "all"
+    assert climb_on.start == "previous" and climb_on.start_best_of == 0
+    assert settle_again.config == terrain_settle.config
+    assert settle_again.start_best_of == 12 and settle_again.stop.iterations == 1000
+    assert climb_on.stop.confirm_seed == settle_again.stop.confirm_seed == 2001
     # --set applies on top of every stage.
     small = load_recipe("unified_flat", ["env.num_envs=8"])
     assert [s.config.env.num_envs for s in small.stages] == [8, 8, 8]
