@@ -109,3 +109,48 @@ def test_m3_multiplies_its_checks_and_takes_4_of_tables_vi_6():
     assert milestone_chance(m3, [seed, other], draw) == pytest.approx(expected / 2)
     with pytest.raises(ValueError, match="at least one seed"):
         milestone_chance(m3, [], draw)
+
+
+def test_the_cli_reads_reports_by_seed_and_prints_each_checks_chance(tmp_path, capsys):
+    import json
+
+    from unigait.cli import main
+
+    def report(seed: int, scenario: str, metrics: dict[str, float]) -> str:
+        path = tmp_path / f"{scenario}_{seed}.json"
+        path.write_text(json.dumps({"scenario": scenario, "seed": seed, "metrics": metrics}))
+        return str(path)
+
+    track = {"tracking/biped/upright_share": 1.0, "tracking/biped/lin_vel_error_mps": 0.1}
+    reports = [
+        report(seed, "tracking_biped", {**track, "tracking/biped/lin_vel_error_mps": error})
+        for seed, error in ((5, 0.1), (6, 0.3))
+    ]
+    assert main(["pass-chance", "--milestone", "M2-biped", *reports]) == 0
+    out = capsys.readouterr().out
+    assert "M2-biped on one unseen draw, from seeds 5, 6" in out
+    assert "| biped upright share >= 0.9 | 1, 1 | 64 | 1.000 |" in out
+    assert "| biped lin. vel. error <= 0.2 | 0.1, 0.3 | 64 | 0.500 |" in out
+    assert "chance of meeting M2-biped: 0.500" in out
+    # A success rate shows its trials; the draw is the milestone's size for Table VI.
+    transition = report(5, "transition_biped_to_quad", {"success_rate": 1.0, "trials": 128})
+    others = [
+        report(5, "tracking_quad", {"tracking/quad/termination_rate": 0.0}),
+        report(5, "transition_quad_to_biped", {"success_rate": 1.0, "trials": 128}),
+        report(5, "table_vi", {"stairs_up_quad/success_rate": 1.0, "stairs_up_quad/trials": 128}),
+    ]
+    assert main(["pass-chance", reports[0], transition, *others, "--num-envs", "32"]) == 0
+    out = capsys.readouterr().out
+    assert "| biped -> quad success >= 0.9 | 1 (128 trials) | 32 |" in out
+    chance = every_one_of(20, 128, 128)
+    assert f"| 15 cm stairs up (q) [table_vi] >= 1 | 1 (128 trials) | 20 | {chance:.3f} |" in out
+    # Missing scenarios, a report twice and a file that is not a report are refused.
+    assert main(["pass-chance", reports[0]]) == 2
+    assert "seed 5 has no report of tracking_quad" in capsys.readouterr().err
+    assert main(["pass-chance", reports[0], reports[0]]) == 2
+    assert "a second tracking_biped report for seed 5" in capsys.readouterr().err
+    (tmp_path / "x.json").write_text("[]")
+    assert main(["pass-chance", str(tmp_path / "x.json")]) == 2
+    assert "x.json: not an evaluation report" in capsys.readouterr().err
+    assert main(["pass-chance", "--milestone", "M9", reports[0]]) == 2
+    assert "unknown milestone 'M9'" in capsys.readouterr().err

@@ -492,6 +492,21 @@ def _checks(args: argparse.Namespace) -> int:
     return 0
 
 
+def _pass_chance(args: argparse.Namespace) -> int:
+    from unigait.milestones import milestone
+    from unigait.pass_chance import ReportError, chance_table, evals_by_seed
+
+    try:
+        judged = milestone(args.milestone)
+        by_seed = evals_by_seed([Path(r) for r in args.reports])
+        draw = {s: judged.envs_for(s, args.num_envs) for s in judged.scenarios}
+        print(chance_table(judged, by_seed, draw), end="")
+    except (KeyError, ReportError) as err:
+        print(f"error: {err.args[0] if err.args else err}", file=sys.stderr)
+        return 2
+    return 0
+
+
 def _trials(args: argparse.Namespace) -> int:
     from unigait.trial_table import TrialTableError, friction_tables, read_trials, trial_tables
 
@@ -771,6 +786,20 @@ def build_parser() -> argparse.ArgumentParser:
         help="each case's trials crossed / run by the friction of their contacts",
     )
     r.set_defaults(func=_trials)
+
+    c = sub.add_parser(
+        "pass-chance",
+        help="the chance that one unseen draw meets a milestone, from reports with many trials",
+    )
+    c.add_argument("reports", nargs="+", help="evaluate --report files: every scenario, each seed")
+    c.add_argument("--milestone", default="M3")
+    c.add_argument(
+        "--num-envs",
+        type=int,
+        default=64,
+        help="the judged draw's envs for scenarios the milestone does not size (ship's default)",
+    )
+    c.set_defaults(func=_pass_chance)
 
     mujoco_cli.register(sub)  # sim2sim, crosscheck, mujoco-bench: MuJoCo imported on use
     return p

@@ -19,8 +19,10 @@ that one fresh draw of the milestone's own size meets it:
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 
 from unigait.milestones import Check, Evals, Milestone
 
@@ -111,3 +113,59 @@ def milestone_chance(
     for group, need in milestone.groups.items():
         chance *= at_least(in_group[group], need)
     return chance
+
+
+class ReportError(ValueError):
+    """Reports that cannot be judged together (the message names the file and what is wrong)."""
+
+
+def evals_by_seed(reports: Sequence[Path]) -> dict[int, dict[str, dict[str, float]]]:
+    """Each seed's evaluations from ``evaluate --report`` files: seed -> scenario -> metrics."""
+    out: dict[int, dict[str, dict[str, float]]] = {}
+    for path in reports:
+        try:
+            report = json.loads(path.read_text())
+            seed, scenario = int(report["seed"]), str(report["scenario"])
+            metrics = {str(k): float(v) for k, v in report["metrics"].items()}
+        except (OSError, ValueError, KeyError, TypeError) as err:
+            raise ReportError(f"{path}: not an evaluation report ({err})") from err
+        if scenario in out.setdefault(seed, {}):
+            raise ReportError(f"{path}: a second {scenario} report for seed {seed}")
+        out[seed][scenario] = metrics
+    return out
+
+
+def chance_table(
+    milestone: Milestone, by_seed: Mapping[int, Evals], draw: Mapping[str, int]
+) -> str:
+    """Each check's and the milestone's pass chance, as a Markdown table.
+
+    Raises:
+        ReportError: a seed lacks one of the milestone's scenarios.
+    """
+    for seed, evals in by_seed.items():
+        missing = [s for s in milestone.scenarios if s not in evals]
+        if missing:
+            raise ReportError(f"seed {seed} has no report of {', '.join(missing)}")
+    per_seed = list(by_seed.values())
+    lines = [
+        f"{milestone.name} on one unseen draw, from seeds {', '.join(map(str, by_seed))}",
+        "",
+        "| check | seen | draw | chance |",
+        "| --- | --- | --- | --- |",
+    ]
+    for check in milestone.checks:
+        n = draw[check.scenario]
+        counts = trials_metric(check.metric)
+        seen = ", ".join(
+            "missing" if (v := check.value(e)) is None else f"{v:.3g}" for e in per_seed
+        )
+        if counts is not None:
+            trials = sum(e.get(check.scenario, {}).get(counts, 0.0) for e in per_seed)
+            seen += f" ({trials:.0f} trials)"
+        label = check.label + (f" [{check.group}]" if check.group else "")
+        p = check_chance(check, per_seed, n)
+        lines.append(f"| {label} {check.op} {check.bound:g} | {seen} | {n} | {p:.3f} |")
+    chance = milestone_chance(milestone, per_seed, draw)
+    lines += ["", f"chance of meeting {milestone.name}: {chance:.3f}"]
+    return "\n".join(lines) + "\n"
