@@ -312,6 +312,8 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     assert climb_on.start == "previous" and climb_on.start_best_of == 0
     assert settle_again.config == terrain_settle.config
     assert settle_again.start_best_of == 12 and settle_again.stop.iterations == 1000
+    assert settle_again.start_rank == "pass_chance" and terrain_settle.start_rank == "criteria"
+    assert settle_again.stop.validation_envs == 128
     assert climb_on.stop.confirm_seed == settle_again.stop.confirm_seed == 2001
     # --set applies on top of every stage.
     small = load_recipe("unified_flat", ["env.num_envs=8"])
@@ -554,6 +556,54 @@ validation_envs = 5
     assert "no numbered checkpoints" in capsys.readouterr().err
 
 
+def test_a_stage_can_start_from_the_best_pass_chance(fake_server, tmp_path, monkeypatch, capsys):
+    from test_pass_chance import every_one_of
+
+    address, servicer = fake_server
+    one_check_milestone(tmp_path, monkeypatch, "success_rate", ">=", 1.0)
+    first, _, _ = two_stages(tmp_path).read_text().partition('[[stages]]\nname = "second"')
+    first = first.replace("iterations = 2", "iterations = 3")
+    recipe = tmp_path / "pick.toml"
+    recipe.write_text(first)
+    run = tmp_path / "run"
+    command = ["train", "--server", address, "--recipe", str(recipe), "--log-dir", str(run)]
+    assert main(command) == 0
+    # Checkpoint 2 crossed every trial, 3 nine in ten; 1 reports no success rate.
+    for iteration, rate in ((2, 1.0), (3, 0.9)):
+        export_policy(run / "01_first" / f"model_{iteration}.pt", tmp_path / "p.onnx")
+        servicer.policy_success[(tmp_path / "p.onnx").read_bytes()] = rate
+    recipe.write_text(
+        first
+        + """[[stages]]
+name = "second"
+start = "previous"
+carry = "all"
+start_best_of = 3
+start_rank = "pass_chance"
+[stages.stop]
+iterations = 2
+milestone = "T"
+check_every = 2
+validation_seed = 77
+confirm_seed = 78
+validation_envs = 10
+"""
+    )
+    servicer.evaluated.clear()
+    assert main([*command, "--adopt-recipe"]) == 0
+    assert servicer.evaluated[:6] == [("flat_quad", s, 10) for s in (77, 78)] * 3
+    stage = json.loads((run / "02_second" / "stage.json").read_text())
+    assert stage["started_from"] == str(run / "01_first" / "model_2.pt")
+    chosen = stage["start_selection"]
+    assert chosen["rank"] == "pass_chance"
+    # 20 of 20 seen, and 18 of 20 (0.9 of 10 a seed); a draw is the check's 10 envs.
+    chances = [c.get("chance") for c in chosen["candidates"]]
+    assert chances == pytest.approx([0.0, every_one_of(10, 20, 20), every_one_of(10, 18, 20)])
+    err = capsys.readouterr().err
+    assert "starts from model_2.pt, the best of 3 on T by the pass chance, seeds 77 and 78" in err
+    assert f"2: 1/1 + 1/1 (chance {chances[1]:.2f})" in err
+
+
 def test_start_best_of_needs_the_previous_stage_and_a_milestone(tmp_path):
     def second_stage(stop: str, line: str) -> Path:
         path = two_stages(tmp_path, stop)
@@ -565,11 +615,16 @@ def test_start_best_of_needs_the_previous_stage_and_a_milestone(tmp_path):
         ("iterations = 5", "start_best_of = 3", "give start"),
         (with_milestone, "start_best_of = -1", "count of checkpoints"),
         (with_milestone, 'start_best_of = "3"', "count of checkpoints"),
+        (with_milestone, 'start_best_of = 3\nstart_rank = "luck"', "start_rank must be one of"),
+        (with_milestone, 'start_rank = "pass_chance"', "give both"),
     ]:
         with pytest.raises(RecipeError, match=message):
             load_recipe(str(second_stage(stop, line)))
     second = load_recipe(str(second_stage(with_milestone, "start_best_of = 4"))).stages[1]
     assert second.start_best_of == 4 and second.stop.check_seeds() == [2000]
+    assert second.start_rank == "criteria"
+    ranked = second_stage(with_milestone, 'start_best_of = 4\nstart_rank = "pass_chance"')
+    assert load_recipe(str(ranked)).stages[1].start_rank == "pass_chance"
 
 
 def test_a_confirm_seed_needs_a_milestone_and_another_seed(tmp_path):

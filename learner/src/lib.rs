@@ -17,6 +17,7 @@ pub mod milestone;
 pub mod mirror;
 pub mod nets;
 pub mod onnx;
+pub mod pass_chance;
 pub mod ppo;
 pub mod recipe;
 pub mod rng;

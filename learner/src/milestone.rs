@@ -68,11 +68,11 @@ pub struct Check {
 }
 
 impl Check {
-    fn value(&self, evals: &Evals) -> Option<f64> {
+    pub(crate) fn value(&self, evals: &Evals) -> Option<f64> {
         evals.get(&self.scenario)?.get(&self.metric).copied()
     }
 
-    fn passes(&self, value: Option<f64>) -> bool {
+    pub(crate) fn passes(&self, value: Option<f64>) -> bool {
         match value {
             None => false,
             Some(v) if self.op == "<=" => v <= self.bound,
@@ -297,13 +297,55 @@ pub async fn evaluate(
     seed: u64,
     task_overrides_toml: &str,
 ) -> Result<Evals> {
+    let sized = |scenario: &str| milestone.envs_for(scenario, envs);
+    evaluate_sized(
+        client,
+        milestone,
+        policy_onnx,
+        &sized,
+        seed,
+        task_overrides_toml,
+    )
+    .await
+}
+
+/// Every scenario of `milestone` on `envs` envs, Table VI's too (its sizes ignored): the many
+/// trials a pass chance is estimated from.
+pub async fn evaluate_at(
+    client: &mut Client,
+    milestone: &Milestone,
+    policy_onnx: &[u8],
+    envs: u32,
+    seed: u64,
+    task_overrides_toml: &str,
+) -> Result<Evals> {
+    let every = |_: &str| envs;
+    evaluate_sized(
+        client,
+        milestone,
+        policy_onnx,
+        &every,
+        seed,
+        task_overrides_toml,
+    )
+    .await
+}
+
+async fn evaluate_sized(
+    client: &mut Client,
+    milestone: &Milestone,
+    policy_onnx: &[u8],
+    envs: &(dyn Fn(&str) -> u32 + Sync),
+    seed: u64,
+    task_overrides_toml: &str,
+) -> Result<Evals> {
     let mut evals = Evals::new();
     for scenario in &milestone.scenarios {
         let r = client
             .evaluate(v1::EvaluateRequest {
                 policy_onnx: policy_onnx.to_vec().into(),
                 scenario: scenario.clone(),
-                num_envs: milestone.envs_for(scenario, envs),
+                num_envs: envs(scenario),
                 seed,
                 task_overrides_toml: task_overrides_toml.to_string(),
                 ..Default::default()

@@ -87,6 +87,8 @@ struct RawStage {
     #[serde(default)]
     start_best_of: Option<i64>,
     #[serde(default)]
+    start_rank: Option<String>,
+    #[serde(default)]
     carry: Option<String>,
     stop: Option<StopRule>,
     #[serde(default)]
@@ -131,6 +133,17 @@ pub enum Start {
     Checkpoint(PathBuf),
 }
 
+/// How `start_best_of`'s candidates are ranked.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StartRank {
+    /// Seeds on which every criterion is met, criteria met, summed margin, the later one; each
+    /// scenario at the milestone's own size.
+    Criteria,
+    /// The chance of meeting the milestone on one unseen draw, every scenario on the stop rule's
+    /// `validation_envs` ([`crate::pass_chance`]); then summed margin, the later one.
+    PassChance,
+}
+
 /// One resolved stage.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Stage {
@@ -146,6 +159,8 @@ pub struct Stage {
     /// last this many checkpoints, judged on the stop rule's milestone and check seeds (0: its
     /// final one). Checkpoints close together can differ by more than a stage moves them.
     pub start_best_of: u32,
+    /// How those candidates are ranked (`start_rank`).
+    pub start_rank: StartRank,
     /// From a checkpoint: `"weights"` or `"all"` (optimisers and counters too).
     pub carry: String,
     /// When it ends.
@@ -339,12 +354,27 @@ fn load(name_or_path: &str, dir: &Path, seen: &mut Vec<String>) -> Result<Recipe
                  stage's milestone: give start = \"previous\" and [stages.stop] milestone"
             )));
         }
+        let start_rank = match s.start_rank.as_deref() {
+            None | Some("criteria") => StartRank::Criteria,
+            Some("pass_chance") => StartRank::PassChance,
+            Some(other) => {
+                return Err(RecipeError(format!(
+                    "{here}: start_rank must be one of criteria, pass_chance, got {other:?}"
+                )));
+            }
+        };
+        if s.start_rank.is_some() && start_best_of == 0 {
+            return Err(RecipeError(format!(
+                "{here}: start_rank ranks start_best_of's candidates: give both"
+            )));
+        }
         stages.push(Stage {
             index: i,
             name: s.name.clone(),
             note: s.note.clone(),
             start,
             start_best_of,
+            start_rank,
             carry,
             stop,
             config: cfg.clone(),
@@ -478,7 +508,25 @@ mod tests {
         );
         let stages = load_recipe("ok", &d).unwrap().stages;
         assert_eq!((stages[0].start_best_of, stages[1].start_best_of), (0, 4));
+        assert_eq!(stages[1].start_rank, StartRank::Criteria);
+        let ranked = "start_best_of = 4\nstart_rank = \"pass_chance\"";
+        write(&d, "ranked", &second(ranked, "milestone = \"M3\"\n"));
+        let stages = load_recipe("ranked", &d).unwrap().stages;
+        assert_eq!(stages[1].start_rank, StartRank::PassChance);
         for (name, text, message) in [
+            (
+                "luck",
+                second(
+                    "start_best_of = 4\nstart_rank = \"luck\"",
+                    "milestone = \"M3\"\n",
+                ),
+                "start_rank must be one of",
+            ),
+            (
+                "rank_alone",
+                second("start_rank = \"pass_chance\"", "milestone = \"M3\"\n"),
+                "give both",
+            ),
             (
                 "bare",
                 second("start_best_of = 4", ""),

@@ -22,7 +22,7 @@ use crate::log::ProgressLog;
 use crate::milestone::{self, load_milestone, milestones_file};
 use crate::mirror::ActorMirror;
 use crate::onnx::export_policy;
-use crate::recipe::{Recipe, Stage, Start};
+use crate::recipe::{Recipe, Stage, Start, StartRank};
 use crate::tensorboard::EventWriter;
 use crate::{Error, Result};
 
@@ -492,6 +492,8 @@ struct Candidate {
     iteration: u64,
     path: PathBuf,
     scores: Vec<(u64, usize, f64)>,
+    /// The pass chance, when ranked by it.
+    chance: Option<f64>,
 }
 
 impl Candidate {
@@ -552,29 +554,42 @@ async fn best_start(
         return Ok((chosen, record));
     }
     let seeds = rule.check_seeds();
+    let by_chance = stage.start_rank == StartRank::PassChance;
+    let envs = rule.validation_envs;
     let mut candidates = Vec::new();
     for (iteration, path) in found {
         let ck = Checkpoint::load(&path)?;
         let onnx = export_checkpoint(&ck)?;
         let engine = engine_overrides(&ck.header.trained_engine());
         let mut scores = Vec::new();
+        let mut per_seed = Vec::new();
         for &seed in &seeds {
-            let evals =
-                milestone::evaluate(client, &m, &onnx, rule.validation_envs, seed, &engine).await?;
+            let evals = if by_chance {
+                milestone::evaluate_at(client, &m, &onnx, envs, seed, &engine).await?
+            } else {
+                milestone::evaluate(client, &m, &onnx, envs, seed, &engine).await?
+            };
             scores.push((seed, m.score(&evals), m.margin(&evals)));
+            per_seed.push(evals);
         }
+        let chance = by_chance.then(|| m.pass_chance(&per_seed, envs));
         candidates.push(Candidate {
             iteration,
             path,
             scores,
+            chance,
         });
     }
     let criteria = m.criteria();
     let best = candidates
         .iter()
         .max_by(|a, b| {
-            (a.seeds_met(criteria), a.met())
-                .cmp(&(b.seeds_met(criteria), b.met()))
+            let ranked = if by_chance {
+                a.chance.unwrap_or(0.0).total_cmp(&b.chance.unwrap_or(0.0))
+            } else {
+                (a.seeds_met(criteria), a.met()).cmp(&(b.seeds_met(criteria), b.met()))
+            };
+            ranked
                 .then(a.margin().total_cmp(&b.margin()))
                 .then(a.iteration.cmp(&b.iteration))
         })
@@ -588,27 +603,38 @@ async fn best_start(
                 .iter()
                 .map(|s| format!("{}/{criteria}", s.1))
                 .collect();
-            format!("{}: {}", c.iteration, met.join(" + "))
+            let chance = c
+                .chance
+                .map_or(String::new(), |p| format!(" (chance {p:.2})"));
+            format!("{}: {}{chance}", c.iteration, met.join(" + "))
         })
         .collect();
     tracing::info!(
-        "stage {}: starts from {}, the best of {} on {}, seeds {:?} ({})",
+        "stage {}: starts from {}, the best of {} on {}{}, seeds {:?} ({})",
         stage.dir_name(),
         best.display(),
         candidates.len(),
         m.name,
+        if by_chance { " by the pass chance" } else { "" },
         seeds,
         listed.join(", ")
     );
     let record = json!({
         "milestone": m.name,
         "seeds": seeds,
-        "candidates": candidates.iter().map(|c| json!({
-            "iteration": c.iteration,
-            "scores": c.scores.iter().map(|&(seed, met, margin)| json!({
-                "seed": seed, "met": met, "margin": margin,
-            })).collect::<Vec<_>>(),
-        })).collect::<Vec<_>>(),
+        "rank": if by_chance { "pass_chance" } else { "criteria" },
+        "candidates": candidates.iter().map(|c| {
+            let mut one = json!({
+                "iteration": c.iteration,
+                "scores": c.scores.iter().map(|&(seed, met, margin)| json!({
+                    "seed": seed, "met": met, "margin": margin,
+                })).collect::<Vec<_>>(),
+            });
+            if let Some(p) = c.chance {
+                one["chance"] = json!(p);
+            }
+            one
+        }).collect::<Vec<_>>(),
         "chosen": best.display().to_string(),
     });
     Ok((best, record))

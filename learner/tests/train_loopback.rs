@@ -381,6 +381,49 @@ fn a_stage_starts_from_the_best_of_the_previous_stages_checkpoints() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// `start_rank = "pass_chance"` ranks the candidates by the chance of meeting the milestone on
+/// one draw (every scenario on `validation_envs`), then the summed margin, the later one.
+#[test]
+fn a_stage_starts_from_the_best_pass_chance() {
+    let (dir, log_dir, _) = run_recipe_text(
+        "best_chance",
+        "milestone = \"M2\"\n[[stages]]\nname = \"first\"\n[stages.stop]\niterations = 3\n\
+         [stages.env]\nnum_envs = 16\n[stages.runner]\nsave_interval = 1\n\
+         [[stages]]\nname = \"second\"\nstart = \"previous\"\ncarry = \"all\"\n\
+         start_best_of = 2\nstart_rank = \"pass_chance\"\n[stages.stop]\niterations = 1\n\
+         milestone = \"M2\"\ncheck_every = 5\nvalidation_envs = 2\nvalidation_seed = 9\n",
+    );
+    let stage: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(log_dir.join("02_second/stage.json")).unwrap(),
+    )
+    .unwrap();
+    let selection = &stage["start_selection"];
+    assert_eq!(selection["rank"], "pass_chance");
+    let candidates = selection["candidates"].as_array().unwrap();
+    let key = |c: &serde_json::Value| {
+        let chance = c["chance"].as_f64().unwrap();
+        assert!((0.0..=1.0).contains(&chance), "{c}");
+        let margin = c["scores"][0]["margin"].as_f64().unwrap();
+        (chance, margin, c["iteration"].as_u64().unwrap())
+    };
+    let best = candidates
+        .iter()
+        .map(key)
+        .max_by(|a, b| {
+            a.0.total_cmp(&b.0)
+                .then(a.1.total_cmp(&b.1))
+                .then(a.2.cmp(&b.2))
+        })
+        .unwrap();
+    let chosen = selection["chosen"].as_str().unwrap();
+    assert!(
+        chosen.ends_with(&format!("model_{}.ckpt", best.2)),
+        "{selection}"
+    );
+    assert_eq!(stage["start_iteration"], best.2);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// `env.terrain_columns` builds the grid the run asks for (decision record 0037), and the log
 /// counts the types the server reports for it.
 #[test]

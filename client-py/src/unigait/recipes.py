@@ -14,6 +14,7 @@ A recipe is a TOML file (home: ``assets/recipes/``; the package carries them)::
     start = "fresh"               # "fresh" | "previous" | a checkpoint path (from the repo root)
     start_best_of = 12            # optional, with "previous": the best of its last 12 checkpoints,
                                   # judged on this stage's milestone and check seeds
+    start_rank = "pass_chance"    # optional: how they are ranked ("criteria", the default)
     carry = "weights"             # from a checkpoint: "weights" only, or "all" (optimisers too)
     [stages.stop]
     iterations = 6000             # the stage's length (its upper bound with a milestone)
@@ -45,11 +46,14 @@ from unigait.assets import recipes_dir
 from unigait.config import TrainConfig, apply, parse_override, toml_document
 
 _RECIPE_KEYS = {"description", "milestone", "extends", "stages"}
+#: How ``start_best_of``'s candidates can be ranked (``unigait.selection`` ranks them).
+START_RANKS = ("criteria", "pass_chance")
 _STAGE_KEYS = {
     "name",
     "note",
     "start",
     "start_best_of",
+    "start_rank",
     "carry",
     "stop",
     "ran_at",
@@ -113,7 +117,10 @@ class Stage:
     the best of the previous stage's last N checkpoints, judged on the stop rule's milestone and
     check seeds (ranked as ``ship --select-last`` ranks). Checkpoints 50 iterations apart can
     differ by more than a stage of training moves them, and a stage that settles at a low
-    learning rate keeps whichever one it starts from.
+    learning rate keeps whichever one it starts from. ``start_rank`` says how they are ranked:
+    ``"criteria"`` (criteria met on each seed, the milestone's own sizes) or ``"pass_chance"``
+    (every scenario on the stop rule's ``validation_envs``, by the chance of meeting the
+    milestone on one unseen draw: :mod:`unigait.pass_chance`).
     """
 
     index: int
@@ -126,6 +133,7 @@ class Stage:
     ran_at: str | None
     runs_at_head: bool
     start_best_of: int = 0
+    start_rank: str = "criteria"
 
     @property
     def dir_name(self) -> str:
@@ -276,6 +284,13 @@ def load_recipe(name_or_path: str, sets: Sequence[str] = (), _seen: tuple[str, .
                 f"{here}: start_best_of chooses among the previous stage's checkpoints by the "
                 'stage\'s milestone: give start = "previous" and [stages.stop] milestone'
             )
+        start_rank = raw.get("start_rank", "criteria")
+        if start_rank not in START_RANKS:
+            raise RecipeError(
+                f"{here}: start_rank must be one of {', '.join(START_RANKS)}, got {start_rank!r}"
+            )
+        if "start_rank" in raw and not best_of:
+            raise RecipeError(f"{here}: start_rank ranks start_best_of's candidates: give both")
         cfg = _stage_config(cfg, raw, here)
         try:
             resolved = _overridden(cfg, sets)
@@ -293,6 +308,7 @@ def load_recipe(name_or_path: str, sets: Sequence[str] = (), _seen: tuple[str, .
                 ran_at=raw.get("ran_at"),
                 runs_at_head=bool(raw.get("runs_at_head", True)),
                 start_best_of=best_of,
+                start_rank=start_rank,
             )
         )
     milestone = doc.get("milestone")
@@ -352,9 +368,15 @@ def describe(recipe: Recipe) -> str:
         start = stage.start if stage.start in ("fresh", "previous") else f"from {stage.start}"
         if stage.start_best_of:
             checked = " and ".join(str(seed) for seed in stage.stop.check_seeds())
+            by = (
+                f"by the chance of meeting {stage.stop.milestone} on one draw, "
+                f"{stage.stop.validation_envs} envs a scenario"
+                if stage.start_rank == "pass_chance"
+                else f"on {stage.stop.milestone}"
+            )
             start = (
-                f"previous: the best of its last {stage.start_best_of} checkpoints on "
-                f"{stage.stop.milestone}, seeds {checked}"
+                f"previous: the best of its last {stage.start_best_of} checkpoints {by}, "
+                f"seeds {checked}"
             )
         lines += [
             "",

@@ -34,6 +34,7 @@ from unigait.client import ConnectionOptions
 from unigait.config import checkpoint_engine_overrides
 from unigait.milestones import Evals, Milestone
 from unigait.pass_chance import milestone_chance
+from unigait.recipes import START_RANKS
 
 _CHECKPOINT = re.compile(r"model_(\d+)\.(?:pt|ckpt)")
 
@@ -160,8 +161,8 @@ def rank_by_chance(candidates: Sequence[Candidate]) -> list[Candidate]:
     return sorted(candidates, key=lambda c: (c.chance or 0.0, c.margin, c.iteration), reverse=True)
 
 
-#: The rankings ``select_checkpoint`` knows (``ship --select-by``).
-RANKINGS = ("criteria", "pass_chance")
+#: The rankings ``select_checkpoint`` knows (``ship --select-by``, a recipe's ``start_rank``).
+RANKINGS = START_RANKS
 
 
 def describe(candidates: Sequence[Candidate], milestone: Milestone, num_envs: int) -> str:

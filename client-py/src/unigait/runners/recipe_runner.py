@@ -199,24 +199,36 @@ def _best_start(
     target = load_milestone(rule.milestone)
     seeds = rule.check_seeds()
     ranked = select_checkpoint(
-        folder, target, address, stage.start_best_of, seeds, rule.validation_envs, connection
+        folder,
+        target,
+        address,
+        stage.start_best_of,
+        seeds,
+        rule.validation_envs,
+        connection,
+        by=stage.start_rank,
+        judged_envs=rule.validation_envs,
     )
     chosen = ranked[0]
     scores = ", ".join(
         f"{c.iteration}: {c.met_per_seed(target.criteria())}"
+        + ("" if c.chance is None else f" (chance {c.chance:.2f})")
         for c in sorted(ranked, key=lambda c: c.iteration)
     )
     log(
         f"stage {stage.dir_name}: starts from {chosen.path.name}, the best of {len(ranked)} on "
-        f"{target.name}, seeds {' and '.join(map(str, seeds))} ({scores})"
+        f"{target.name}{' by the pass chance' if stage.start_rank == 'pass_chance' else ''}, "
+        f"seeds {' and '.join(map(str, seeds))} ({scores})"
     )
     record = {
         "milestone": target.name,
         "seeds": seeds,
+        "rank": stage.start_rank,
         "candidates": [
             {
                 "iteration": c.iteration,
                 "scores": [{"seed": s.seed, "met": s.met, "margin": s.margin} for s in c.scores],
+                **({} if c.chance is None else {"chance": c.chance}),
             }
             for c in sorted(ranked, key=lambda c: c.iteration)
         ],
