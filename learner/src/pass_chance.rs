@@ -4,7 +4,7 @@
 //! pooled over the seeds under a Jeffreys prior, and its chance is the beta-binomial
 //! probability that a draw of the milestone's size meets the bound; any other check counts the
 //! seeds on which it was met; a group needs `at_least` of its checks (taken as independent);
-//! the milestone multiplies its criteria.
+//! the milestone multiplies its criteria. Why: docs/src/decisions/0043-rank-checkpoints-by-pass-chance.md.
 
 use crate::milestone::{Check, Evals, Milestone};
 

@@ -1,5 +1,7 @@
 """How likely a policy is to meet a milestone on a draw it has not seen, from larger draws.
 
+Why: docs/src/decisions/0043-rank-checkpoints-by-pass-chance.md.
+
 A milestone judges a few trials: Table VI's columns are 20 trials each, and a policy that
 crosses 97% of the time makes 20 of 20 in about half its draws. Which of two checkpoints meets
 the milestone more often is then a question 20 trials answer badly and a few hundred answer
