@@ -123,7 +123,7 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     ).stages[18:26]
     late = load_recipe("unified_terrain").stages[26:]
     clock, air_time, quad_swing, biped_forward, quad_pace_6, heading_hold, terrain_settle = late[:7]
-    climb_on, settle_again = late[7:]
+    climb_on, stairs_focus, settle_again = late[7:]
     assert terrain.config.policy == settle.config.policy
     assert (
         terrain.config.env.task["rewards"]["weights"]
@@ -310,7 +310,19 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     # settles it as the thirty-third did.
     assert climb_on.config == heading_hold.config and climb_on.carry == "all"
     assert climb_on.start == "previous" and climb_on.start_best_of == 0
-    assert settle_again.config == terrain_settle.config
+    assert climb_on.stop.iterations == 450
+    # The thirty-fifth turns the obstacle columns into stairs up in place, nothing else.
+    columns = list(climb_on.config.env.terrain_columns)
+    assert columns[16:] == ["obstacles"] * 4
+    assert list(stairs_focus.config.env.terrain_columns) == columns[:16] + ["stairs_up"] * 4
+    assert stairs_focus.config == dataclasses.replace(
+        climb_on.config,
+        env=dataclasses.replace(
+            climb_on.config.env, terrain_columns=stairs_focus.config.env.terrain_columns
+        ),
+    )
+    assert settle_again.config.ppo == terrain_settle.config.ppo
+    assert settle_again.config.env == stairs_focus.config.env
     assert settle_again.start_best_of == 12 and settle_again.stop.iterations == 1000
     assert settle_again.start_rank == "pass_chance" and terrain_settle.start_rank == "criteria"
     assert settle_again.stop.validation_envs == 128
