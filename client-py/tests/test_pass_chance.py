@@ -3,6 +3,7 @@
 import math
 
 import pytest
+from test_milestones import M2_MET
 
 from unigait.milestones import Check, milestone
 from unigait.pass_chance import (
@@ -69,19 +70,8 @@ def test_a_check_pools_its_seeds_and_a_mean_counts_the_seeds_that_met_it():
 
 def test_m3_multiplies_its_checks_and_takes_4_of_tables_vi_6():
     m3 = milestone("M3")
-    flat = {
-        "tracking_quad": {
-            "tracking/quad/lin_vel_error_mps": 0.1,
-            "tracking/quad/ang_vel_error_radps": 0.1,
-            "tracking/quad/termination_rate": 0.0,
-        },
-        "tracking_biped": {
-            "tracking/biped/upright_share": 1.0,
-            "tracking/biped/lin_vel_error_mps": 0.1,
-        },
-        "transition_biped_to_quad": {"success_rate": 1.0, "trials": 64},
-        "transition_quad_to_biped": {"success_rate": 1.0, "trials": 64},
-    }
+    switch = {"success_rate": 1.0, "trials": 64}
+    flat = {**M2_MET, "transition_biped_to_quad": switch, "transition_quad_to_biped": switch}
     crossed = {"stairs_up_quad": 128, "stairs_down_quad": 128, "slope_quad": 128}
     crossed |= {"slope_biped": 100, "stairs_up_biped": 40, "stairs_down_biped": 127}
     table_vi = {}
