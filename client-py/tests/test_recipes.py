@@ -3,6 +3,7 @@
 The kill-and-resume run against the real server is ``tests/test_e2e_recipes.py``.
 """
 
+import copy
 import csv
 import dataclasses
 import json
@@ -123,7 +124,7 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     ).stages[18:26]
     late = load_recipe("unified_terrain").stages[26:]
     clock, air_time, quad_swing, biped_forward, quad_pace_6, heading_hold, terrain_settle = late[:7]
-    climb_on, stairs_focus, settle_again = late[7:]
+    climb_on, stairs_focus, knee_price, settle_again = late[7:]
     assert terrain.config.policy == settle.config.policy
     assert (
         terrain.config.env.task["rewards"]["weights"]
@@ -321,8 +322,18 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
             climb_on.config.env, terrain_columns=stairs_focus.config.env.terrain_columns
         ),
     )
+    assert stairs_focus.stop.iterations == 875
+    # The thirty-sixth prices a thigh or calf on the terrain four times Table II's, nothing else.
+    assert stairs_focus.config.env.task["rewards"]["weights"].get("collision", -1.0) == -1.0
+    priced = copy.deepcopy(stairs_focus.config.env.task)
+    priced.setdefault("rewards", {}).setdefault("weights", {})["collision"] = -4.0
+    assert knee_price.config.env.task == priced
+    assert knee_price.config == dataclasses.replace(
+        stairs_focus.config, env=dataclasses.replace(stairs_focus.config.env, task=priced)
+    )
+    assert knee_price.start == "previous" and knee_price.start_best_of == 0
     assert settle_again.config.ppo == terrain_settle.config.ppo
-    assert settle_again.config.env == stairs_focus.config.env
+    assert settle_again.config.env == knee_price.config.env
     assert settle_again.start_best_of == 12 and settle_again.stop.iterations == 1000
     assert settle_again.start_rank == "pass_chance" and terrain_settle.start_rank == "criteria"
     assert settle_again.stop.validation_envs == 128
