@@ -331,7 +331,8 @@ def test_each_stage_is_the_one_before_with_its_own_tables_merged_in():
     assert knee_price.config == dataclasses.replace(
         stairs_focus.config, env=dataclasses.replace(stairs_focus.config.env, task=priced)
     )
-    assert knee_price.start == "previous" and knee_price.start_best_of == 0
+    assert knee_price.start == "previous" and knee_price.start_best_of == 12
+    assert knee_price.start_rank == "pass_chance"
     assert settle_again.config.ppo == terrain_settle.config.ppo
     assert settle_again.config.env == knee_price.config.env
     assert settle_again.start_best_of == 12 and settle_again.stop.iterations == 1000
