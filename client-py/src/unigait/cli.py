@@ -9,6 +9,7 @@ import os
 import shlex
 import shutil
 import sys
+import tempfile
 import time
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
@@ -381,10 +382,38 @@ def _reproducing_ship(argv: Sequence[str], recipe: str) -> str:
     )
 
 
+def _average(args: argparse.Namespace) -> int:
+    from unigait.averaging import AveragingError, describe_average, write_average
+    from unigait.selection import recent_checkpoints
+    from unigait.ship import run_folder
+
+    paths: list[Path] = list(args.checkpoints)
+    if args.run_dir is not None:
+        if paths or args.last <= 0:
+            print("error: give checkpoints, or --run-dir with --last N (N > 0)", file=sys.stderr)
+            return 2
+        paths = [p for _, p in recent_checkpoints(run_folder(args.run_dir), args.last)]
+        if len(paths) < args.last:
+            print(
+                f"error: {args.run_dir} holds {len(paths)} numbered checkpoints, "
+                f"--last needs {args.last}",
+                file=sys.stderr,
+            )
+            return 2
+    try:
+        averaged = write_average(paths, args.out)
+    except AveragingError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    print(f"{args.out}: {describe_average(averaged['averaged_from'])}")
+    return 0
+
+
 def _ship(args: argparse.Namespace) -> int:
+    from unigait.averaging import AveragingError, write_average
     from unigait.milestones import milestone
     from unigait.recipes import RecipeError, load_recipe
-    from unigait.selection import describe, select_checkpoint
+    from unigait.selection import describe, recent_checkpoints, select_checkpoint
     from unigait.ship import run_folder, ship
 
     select_seeds = list(dict.fromkeys(args.select_seed or [2000]))
@@ -406,10 +435,33 @@ def _ship(args: argparse.Namespace) -> int:
     except (RecipeError, KeyError) as err:
         print(f"error: {err.args[0] if err.args else err}", file=sys.stderr)
         return 2
+    if args.average_last > 0 and (args.checkpoint or args.select_last > 0):
+        print(
+            "error: --average-last makes the checkpoint: no --checkpoint or --select-last",
+            file=sys.stderr,
+        )
+        return 2
     checkpoint = Path(args.checkpoint) if args.checkpoint else None
     select_envs = args.select_envs or args.num_envs
     selection = None
-    with _servers(args.server or []) as addresses:
+    with contextlib.ExitStack() as stack, _servers(args.server or []) as addresses:
+        if args.average_last > 0:
+            folder = run_folder(Path(args.run_dir))
+            found = [p for _, p in recent_checkpoints(folder, args.average_last)]
+            if len(found) < args.average_last:
+                print(
+                    f"error: {folder} holds {len(found)} numbered checkpoints, "
+                    f"--average-last needs {args.average_last}",
+                    file=sys.stderr,
+                )
+                return 2
+            scratch = Path(stack.enter_context(tempfile.TemporaryDirectory()))
+            try:  # the card names the averaged iterations (the checkpoint's averaged_from)
+                write_average(found, scratch / found[-1].name)
+            except AveragingError as err:
+                print(f"error: {err}", file=sys.stderr)
+                return 2
+            checkpoint = scratch / found[-1].name
         if args.select_last > 0:
             ranked = select_checkpoint(
                 run_folder(Path(args.run_dir)),
@@ -748,7 +800,24 @@ def build_parser() -> argparse.ArgumentParser:
         "(scenarios at the milestone's own size), or by the estimated chance of meeting it on "
         "one unseen draw, every scenario at --select-envs (docs: evaluation)",
     )
+    s.add_argument(
+        "--average-last",
+        type=int,
+        default=0,
+        metavar="N",
+        help="ship the mean of the weights of the run's last N checkpoints (decision 0044): a "
+        "run under an adaptive learning rate swings between checkpoints, their mean less",
+    )
     s.set_defaults(func=_ship)
+
+    a = sub.add_parser(
+        "average", help="a checkpoint whose networks are the mean of several checkpoints'"
+    )
+    a.add_argument("checkpoints", nargs="*", type=Path, help="model_*.pt files, oldest first")
+    a.add_argument("--run-dir", type=Path, help="average this run's last --last checkpoints")
+    a.add_argument("--last", type=int, default=0, metavar="N")
+    a.add_argument("--out", type=Path, required=True, help="the averaged model_*.pt")
+    a.set_defaults(func=_average)
 
     c = sub.add_parser("compare-rsl-rl", help="our learner vs rsl_rl's runner, quad on flat")
     c.add_argument("--server", action="append", metavar="HOST:PORT")

@@ -16,7 +16,9 @@ import json
 import shutil
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
+from unigait.averaging import describe_average
 from unigait.checkpoints import SUFFIXES, export_policy, latest_checkpoint, read_checkpoint
 from unigait.config import checkpoint_engine_overrides
 from unigait.milestones import Milestone
@@ -88,6 +90,15 @@ def _swap_into_place(built: Path, folder: Path) -> None:
         folder.replace(old)
     built.replace(folder)
     shutil.rmtree(old, ignore_errors=True)
+
+
+def _with_averaging(selection: str | None, checkpoint: dict[str, Any]) -> str | None:
+    """The card's selection text, with the averaged iterations when the weights are a mean."""
+    averaged = checkpoint.get("averaged_from")
+    if not averaged:
+        return selection
+    sentence = describe_average([int(i) for i in averaged])
+    return f"{selection}\n\n{sentence}" if selection else sentence
 
 
 def ship(
@@ -176,7 +187,7 @@ def ship(
             eval_seed=eval_seed,
             num_envs=num_envs,
             ship_command=ship_command,
-            selection=selection,
+            selection=_with_averaging(selection, checkpoint),
             physics_engine=", ".join(sorted(ran_on)),
         )
         (built / "MODEL_CARD.md").write_text(model_card(card))
