@@ -30,7 +30,7 @@ for scenario in transition_quad_to_biped transition_biped_to_quad; do
 done
 
 echo "== the shipped terrain policy (assets/policies/unified_terrain): Table VI's stairs up, recorded"
-# On two legs it crosses about a third of the 12 cm climbs: the recording follows trial 8, a
+# On two legs it crosses about half of the 12 cm climbs: the recording follows trial 8, a
 # backward climb that crosses on this seed (the report has all 16).
 for scenario_trial in stairs_up_quad:0 stairs_up_biped:8; do
   scenario="${scenario_trial%:*}"
