@@ -98,3 +98,26 @@ def test_a_runs_last_checkpoints_average_export_and_ship(fake_server, tmp_path, 
     assert main(["average", "--run-dir", str(run), "--out", str(tmp_path / "x.pt")]) == 2
     assert main(["average", str(run / "model_1.ckpt"), "--out", str(tmp_path / "x.pt")]) == 2
     assert "only the Python learner" in capsys.readouterr().err
+
+
+def test_a_cards_reproduce_lines_average_the_recipe_stages_checkpoints():
+    from types import SimpleNamespace
+
+    from unigait.model_card import _average_then_ship
+
+    card = SimpleNamespace(recipe="unified_terrain", ship_command="python -m unigait ship --x")
+    provenance = {"recipe": "unified_terrain", "stage": 36, "stage_name": "knee_price"}
+    every_25 = {"averaged_from": [35800, 35825, 35850], "provenance": provenance}
+    assert _average_then_ship(card, every_25) == [
+        "python -m unigait average runs/unified_terrain/36_knee_price/model_{35800..35850..25}.pt"
+        " --out runs/unified_terrain/averaged_35800-35850.pt",
+        "python -m unigait ship --x --checkpoint runs/unified_terrain/averaged_35800-35850.pt",
+    ]
+    uneven = {"averaged_from": [10, 30, 40], "provenance": provenance}
+    assert _average_then_ship(card, uneven)[0].startswith(
+        "python -m unigait average runs/unified_terrain/36_knee_price/model_10.pt "
+        "runs/unified_terrain/36_knee_price/model_30.pt"
+    )
+    # One checkpoint, or no recipe stage to name: the ship line alone.
+    assert _average_then_ship(card, {"provenance": provenance}) == [card.ship_command]
+    assert _average_then_ship(card, {"averaged_from": [1, 2]}) == [card.ship_command]

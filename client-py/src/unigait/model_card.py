@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import os
 import platform
 from collections.abc import Mapping, Sequence
@@ -309,7 +310,7 @@ def model_card(card: CardInputs) -> str:
         "",
         "```sh",
         f"{_train_command(provenance)} --recipe {card.recipe} --log-dir runs/{card.recipe}",
-        card.ship_command,
+        *_average_then_ship(card, checkpoint),
         "```",
         "",
     ]
@@ -332,6 +333,29 @@ def model_card(card: CardInputs) -> str:
         lines.append("")
     lines += ["## Config", "", "```toml", _config_toml(checkpoint), "```"]
     return "\n".join(lines) + "\n"
+
+
+def _average_then_ship(card: CardInputs, checkpoint: Mapping[str, Any]) -> list[str]:
+    """The ship line, after the ``average`` line that makes the checkpoint when it is a mean.
+
+    The averaged checkpoints are the numbered ones of the stage its provenance names
+    (decision record 0044).
+    """
+    iterations = sorted(int(i) for i in checkpoint.get("averaged_from", []))
+    provenance = checkpoint.get("provenance", {})
+    if not iterations or "stage" not in provenance or "stage_name" not in provenance:
+        return [card.ship_command]
+    folder = f"runs/{card.recipe}/{int(provenance['stage']):02d}_{provenance['stage_name']}"
+    steps = {b - a for a, b in itertools.pairwise(iterations)}
+    if len(steps) == 1 and len(iterations) > 1:
+        names = f"{folder}/model_{{{iterations[0]}..{iterations[-1]}..{steps.pop()}}}.pt"
+    else:
+        names = " ".join(f"{folder}/model_{i}.pt" for i in iterations)
+    averaged = f"runs/{card.recipe}/averaged_{iterations[0]}-{iterations[-1]}.pt"
+    return [
+        f"python -m unigait average {names} --out {averaged}",
+        f"{card.ship_command} --checkpoint {averaged}",
+    ]
 
 
 def _is_rust(provenance: Mapping[str, Any]) -> bool:
