@@ -21,14 +21,13 @@ class AveragingError(ValueError):
     """Checkpoints that cannot be averaged, with the file named."""
 
 
-def _networks(path: Path, checkpoint: Any) -> dict[str, dict[str, Any]]:
+def _check_networks(path: Path, checkpoint: Any) -> None:
     if not isinstance(checkpoint, dict) or any(
         not isinstance(checkpoint.get(k), dict) for k in NETWORKS
     ):
         raise AveragingError(
             f"{path}: not a Python learner's checkpoint (no {', '.join(NETWORKS)})"
         )
-    return {k: checkpoint[k] for k in NETWORKS}
 
 
 def average_checkpoints(paths: Sequence[Path]) -> dict[str, Any]:
@@ -55,34 +54,29 @@ def average_checkpoints(paths: Sequence[Path]) -> dict[str, Any]:
             checkpoint = torch.load(path, map_location="cpu", weights_only=False)
         except (OSError, RuntimeError, EOFError) as err:
             raise AveragingError(f"{path}: cannot be read ({err})") from err
-        _networks(path, checkpoint)
+        _check_networks(path, checkpoint)
         loaded.append(checkpoint)
     out = dict(loaded[-1])
-    first = _networks(paths[-1], out)
     for key in NETWORKS:
+        last_networks = loaded[-1][key]
+        for path, checkpoint in zip(paths, loaded, strict=True):
+            if set(checkpoint[key]) != set(last_networks):
+                raise AveragingError(f"{path}: {key} holds other tensors than the last checkpoint")
         averaged: dict[str, Any] = {}
-        for name, last in first[key].items():
-            tensors = []
-            for path, checkpoint in zip(paths, loaded, strict=True):
-                tensor = checkpoint[key].get(name)
-                if tensor is None or tensor.shape != last.shape:
-                    got = "none" if tensor is None else tuple(tensor.shape)
+        for name, last in last_networks.items():
+            tensors = [checkpoint[key][name] for checkpoint in loaded]
+            for path, tensor in zip(paths, tensors, strict=True):
+                if tensor.shape != last.shape:
                     raise AveragingError(
-                        f"{path}: {key}.{name} has shape {got}, the last checkpoint's "
-                        f"{tuple(last.shape)}: not the same networks"
+                        f"{path}: {key}.{name} has shape {tuple(tensor.shape)}, the last "
+                        f"checkpoint's {tuple(last.shape)}: not the same networks"
                     )
-                tensors.append(tensor)
             if last.is_floating_point():
                 averaged[name] = torch.stack(tensors).mean(dim=0)
+            elif any(not torch.equal(t, last) for t in tensors):
+                raise AveragingError(f"{key}.{name}: an integer tensor the checkpoints disagree on")
             else:
-                if any(not torch.equal(t, last) for t in tensors):
-                    raise AveragingError(
-                        f"{key}.{name}: an integer tensor the checkpoints disagree on"
-                    )
                 averaged[name] = last
-        for path, checkpoint in zip(paths, loaded, strict=True):
-            if set(checkpoint[key]) != set(averaged):
-                raise AveragingError(f"{path}: {key} holds other tensors than the last checkpoint")
         out[key] = averaged
     out["averaged_from"] = [int(c.get("iteration", 0)) for c in loaded]
     return out
@@ -98,11 +92,17 @@ def write_average(paths: Sequence[Path], out: Path) -> dict[str, Any]:
     return averaged
 
 
+def common_step(iterations: Sequence[int]) -> int | None:
+    """The one distance between successive sorted ``iterations``, if there is one."""
+    steps = {b - a for a, b in itertools.pairwise(sorted(iterations))}
+    return steps.pop() if len(steps) == 1 else None
+
+
 def describe_average(iterations: Sequence[int]) -> str:
     """One sentence for a model card: which iterations were averaged."""
     spans = sorted(iterations)
-    steps = {b - a for a, b in itertools.pairwise(spans)}
-    every = f", every {steps.pop()}" if len(steps) == 1 else ""
+    step = common_step(spans)
+    every = f", every {step}" if step else ""
     return (
         f"The weights are the mean of {len(spans)} checkpoints' (iterations {spans[0]}-"
         f"{spans[-1]}{every}; decision record 0044), not one checkpoint's."

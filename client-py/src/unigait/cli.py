@@ -382,24 +382,34 @@ def _reproducing_ship(argv: Sequence[str], recipe: str) -> str:
     )
 
 
-def _average(args: argparse.Namespace) -> int:
-    from unigait.averaging import AveragingError, describe_average, write_average
+def _last_checkpoints(run_dir: Path, count: int, flag: str) -> list[Path] | None:
+    """The run's last ``count`` numbered checkpoints, or None (said on stderr) if it has fewer."""
     from unigait.selection import recent_checkpoints
     from unigait.ship import run_folder
+
+    folder = run_folder(run_dir)
+    found = [p for _, p in recent_checkpoints(folder, count)]
+    if len(found) < count:
+        print(
+            f"error: {folder} holds {len(found)} numbered checkpoints, {flag} needs {count}",
+            file=sys.stderr,
+        )
+        return None
+    return found
+
+
+def _average(args: argparse.Namespace) -> int:
+    from unigait.averaging import AveragingError, describe_average, write_average
 
     paths: list[Path] = list(args.checkpoints)
     if args.run_dir is not None:
         if paths or args.last <= 0:
             print("error: give checkpoints, or --run-dir with --last N (N > 0)", file=sys.stderr)
             return 2
-        paths = [p for _, p in recent_checkpoints(run_folder(args.run_dir), args.last)]
-        if len(paths) < args.last:
-            print(
-                f"error: {args.run_dir} holds {len(paths)} numbered checkpoints, "
-                f"--last needs {args.last}",
-                file=sys.stderr,
-            )
+        found = _last_checkpoints(args.run_dir, args.last, "--last")
+        if found is None:
             return 2
+        paths = found
     try:
         averaged = write_average(paths, args.out)
     except AveragingError as err:
@@ -413,7 +423,7 @@ def _ship(args: argparse.Namespace) -> int:
     from unigait.averaging import AveragingError, write_average
     from unigait.milestones import milestone
     from unigait.recipes import RecipeError, load_recipe
-    from unigait.selection import describe, recent_checkpoints, select_checkpoint
+    from unigait.selection import describe, select_checkpoint
     from unigait.ship import run_folder, ship
 
     select_seeds = list(dict.fromkeys(args.select_seed or [2000]))
@@ -446,14 +456,8 @@ def _ship(args: argparse.Namespace) -> int:
     selection = None
     with contextlib.ExitStack() as stack, _servers(args.server or []) as addresses:
         if args.average_last > 0:
-            folder = run_folder(Path(args.run_dir))
-            found = [p for _, p in recent_checkpoints(folder, args.average_last)]
-            if len(found) < args.average_last:
-                print(
-                    f"error: {folder} holds {len(found)} numbered checkpoints, "
-                    f"--average-last needs {args.average_last}",
-                    file=sys.stderr,
-                )
+            found = _last_checkpoints(Path(args.run_dir), args.average_last, "--average-last")
+            if found is None:
                 return 2
             scratch = Path(stack.enter_context(tempfile.TemporaryDirectory()))
             try:  # the card names the averaged iterations (the checkpoint's averaged_from)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import itertools
 import os
 import platform
 from collections.abc import Mapping, Sequence
@@ -10,6 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from unigait.averaging import common_step
 from unigait.milestones import Evals, Milestone
 from unigait.recipes import load_recipe
 
@@ -346,9 +346,9 @@ def _average_then_ship(card: CardInputs, checkpoint: Mapping[str, Any]) -> list[
     if not iterations or "stage" not in provenance or "stage_name" not in provenance:
         return [card.ship_command]
     folder = f"runs/{card.recipe}/{int(provenance['stage']):02d}_{provenance['stage_name']}"
-    steps = {b - a for a, b in itertools.pairwise(iterations)}
-    if len(steps) == 1 and len(iterations) > 1:
-        names = f"{folder}/model_{{{iterations[0]}..{iterations[-1]}..{steps.pop()}}}.pt"
+    step = common_step(iterations)
+    if step:
+        names = f"{folder}/model_{{{iterations[0]}..{iterations[-1]}..{step}}}.pt"
     else:
         names = " ".join(f"{folder}/model_{i}.pt" for i in iterations)
     averaged = f"runs/{card.recipe}/averaged_{iterations[0]}-{iterations[-1]}.pt"
